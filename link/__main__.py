@@ -1,0 +1,5 @@
+import sys
+
+from link.cli import main
+
+sys.exit(main())
