@@ -35,10 +35,9 @@ class VehicleKeys:
         return f"{self.prefix}/sim/truth/{self.vehicle_id}"
 
     @property
+    def clock(self) -> str:  # lockstep: emulator -> ground station, simulation clock ticks
+        return f"{self.prefix}/sim/clock/{self.vehicle_id}"
+
+    @property
     def clock_ack(self) -> str:  # lockstep: ground station -> emulator, "tick done"
         return f"{self.prefix}/sim/clock_ack/{self.vehicle_id}"
-
-
-def clock_key(prefix: str) -> str:
-    """Lockstep simulation clock, emulator -> everyone; never subject to radio loss."""
-    return f"{prefix}/sim/clock"

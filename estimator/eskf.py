@@ -1,0 +1,662 @@
+"""Error-state (multiplicative) Kalman filter fusing a ~500 Hz IMU with ~100 Hz motion capture.
+
+Takes in: link.messages.ImuSample (sample time on the vehicle clock; specific force FLU m/s^2, reading
++g on z at rest; angular rate FLU rad/s) and link.messages.MocapPose (SAMPLE time; position ENU m;
+attitude wxyz body FLU -> world ENU), in any arrival order. Noise densities from link.vehicle.Vehicle.imu
+and link.vehicle.MocapRoom; tuning from estimator/params/eskf.toml (`EskfParams`).
+Gives out: `Estimate` (position ENU m, velocity ENU m/s, attitude wxyz, bias-corrected body rate FLU
+rad/s, accelerometer and gyro biases, 15x15 error covariance and its standard deviations, health).
+
+State. Nominal x = (p, v, q, b_a, b_g); error dx = (dp, dv, dtheta, db_a, db_g) (15 states, this order,
+see ERROR_STATE_LABELS) with the local attitude error q_true = q (x) Exp(dtheta) (body frame).
+Nominal propagation over an IMU interval [t0, t1], dt = t1 - t0, trapezoidal in the two samples:
+    w = (w0 + w1)/2 - b_g,                  q1 = q0 (x) Exp(w dt)
+    a_k = R(q_k) (f_k - b_a) - g e3,       a = (a_0 + a_1)/2       (g = link.vehicle.GRAVITY_MPS2)
+    p1 = p0 + v0 dt + a dt^2/2,             v1 = v0 + a dt,         biases constant.
+Error transition, first order (Sola 2017 eq. 269), f = (f0 + f1)/2 - b_a, R = R(q0):
+    F = I + dt A + dt^2/2 (dp rows):  dp <- dv: I;  dv <- dtheta: -R[f]x;  dv <- db_a: -R;
+    dtheta <- dtheta: -[w]x;  dtheta <- db_g: -I;  and dp <- dtheta, db_a: -R[f]x dt^2/2, -R dt^2/2.
+Process noise from the continuous densities (s_a, s_g, s_ba, s_bg) of the vehicle, per axis:
+    Q_pp = s_a^2 dt^3/3, Q_pv = s_a^2 dt^2/2, Q_vv = s_a^2 dt, Q_tt = s_g^2 dt, Q_ba = s_ba^2 dt,
+    Q_bg = s_bg^2 dt (times noise.process_noise_variance_scale).
+Mocap measurement: z = [p_m - p ; Log(q^* (x) q_m)] = H dx + n, H = [I 0 0 0 0; 0 0 I 0 0],
+    R = diag(s_p^2 I3, s_theta^2 I3) of the room (times noise.mocap_noise_variance_scale).
+
+What filterpy does (one filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state):
+predict(F=F, Q=Q) computes x = F x and P = F P F' + Q; update(z, R=R, H=H) computes y = z - H x,
+S = H P H' + R, S^-1 (numpy.linalg.inv), K = P H' S^-1, x = x + K y and the Joseph form
+P = (I - K H) P (I - K H)' + K R K'. What this module does around it: the nominal propagation above
+(plain floats), building F and Q each interval, forming z from the nominal state, the Mahalanobis gate
+d^2 = y' S^-1 y on filterpy's y and S^-1 (a rejected frame keeps the prior P: the update is discarded),
+injecting dx into the nominal state (q <- q (x) Exp(dtheta)), the ESKF reset P <- G P G' with
+G_theta = I - [dtheta/2]x (Sola eq. 287), setting x back to 0, and the time bookkeeping below.
+
+Time bookkeeping (latency compensation). Every sample is a node on a timeline sorted by sample time,
+holding the nominal state and P just after it; the last `buffer.length_s` seconds are kept. A mocap
+frame is inserted at its SAMPLE time: the filter rolls back to the node before it, propagates to the
+frame's time (the IMU signal there interpolated between the neighbouring samples), updates, and
+re-propagates through the buffered IMU samples, re-applying later mocap frames, to the newest sample.
+Late, reordered and out-of-order frames of either kind take that same path; during a replay earlier
+decisions (accept / reject / re-initialise) are kept, not re-gated, and the (F, Q) of intervals that did
+not change are reused (linearised before the replay's corrections: a second-order difference, below
+1e-3 of the estimate's own sigma in the tests), so a replayed IMU sample costs ~9 us instead of ~15 us.
+Frames older than the buffer are dropped and counted; a frame with the same sample time as one already
+held is a duplicate and ignored.
+A mocap frame from the future (sample time after the newest IMU sample) is gated at once against a
+prediction and applied when the IMU catches up. Lost IMU frames: the interval is integrated between
+the samples either side of the gap (signal interpolated linearly, sub-steps of at most imu.max_step_s),
+and Q grows with its length; gaps are counted when their nodes leave the buffer, i.e. once final.
+predict_to(t) makes one step from the newest sample holding it, with filterpy.kalman.predict (the
+functional form), so the filter itself is untouched.
+
+Outliers and re-initialisation. A frame with d^2 > chi2.ppf(gating.chi2_probability, 6) is rejected and
+counted. A frame failing the gate instead re-initialises the filter - position and attitude := the
+frame, velocity and biases kept, P reset to the initial one with velocity sigma
+initial.reinit_velocity_sigma_mps and the bias blocks kept - when no frame was accepted for
+gating.reinit_after_blackout_s, or after gating.reinit_after_rejections rejections in a row: by then the
+estimate, not the frame, is the likelier to be wrong. (Re-initialising on an outlier is undone the same
+way by the following good frames.)
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+from filterpy.kalman import predict as filterpy_predict
+from scipy.stats import chi2
+
+from estimator.rotation import attitude_error, quat_exp, quat_multiply, quat_normalise, quat_to_matrix, rotate
+from link.config import Params, resolve
+from link.errors import UserError
+from link.messages import ImuSample, MocapPose
+from link.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
+
+ERROR_STATE_LABELS = (
+    "position_e_m", "position_n_m", "position_u_m",
+    "velocity_e_mps", "velocity_n_mps", "velocity_u_mps",
+    "attitude_x_rad", "attitude_y_rad", "attitude_z_rad",
+    "accel_bias_x_mps2", "accel_bias_y_mps2", "accel_bias_z_mps2",
+    "gyro_bias_x_radps", "gyro_bias_y_radps", "gyro_bias_z_radps",
+)
+POSITION, VELOCITY, ATTITUDE, ACCEL_BIAS, GYRO_BIAS = (slice(i, i + 3) for i in range(0, 15, 3))
+N_ERROR = 15
+N_MOCAP = 6
+# Rows/columns of the 3x3 blocks written into F each interval (see _transition for the values' order).
+_F_BLOCKS = ((0, 6), (0, 9), (3, 6), (3, 9))
+
+_IMU, _MOCAP = 0, 1
+_NEW, _ACCEPTED, _REJECTED, _REINIT, _INIT = range(5)
+# Trim the buffer in chunks: deleting the head of a list costs the same for 1 or 16 nodes.
+_TRIM_CHUNK = 16
+
+
+@dataclass(frozen=True)
+class EskfParams:
+    """The filter's own tuning (estimator/params/eskf.toml); sensor noise comes from vehicle and room."""
+
+    process_noise_variance_scale: float
+    mocap_noise_variance_scale: float
+    initial_velocity_sigma_mps: float
+    reinit_velocity_sigma_mps: float
+    gate_chi2_probability: float
+    reinit_after_blackout_s: float
+    reinit_after_rejections: int
+    blackout_s: float
+    max_position_sigma_m: float
+    buffer_length_s: float
+    imu_gap_factor: float
+    imu_max_step_s: float
+    source: str = "<memory>"
+
+
+def load_eskf_params(name_or_path: str | Path = "eskf") -> EskfParams:
+    """Read filter tuning from a TOML file (built-in name: eskf); one-line ConfigError on a bad field."""
+    p = Params.load(resolve(name_or_path, "estimator", "params", "estimator parameters"))
+    noise, initial, gating = p.table("noise"), p.table("initial"), p.table("gating")
+    health, buffer, imu = p.table("health"), p.table("buffer"), p.table("imu")
+    return EskfParams(
+        process_noise_variance_scale=noise.number("process_noise_variance_scale", minimum=1e-6),
+        mocap_noise_variance_scale=noise.number("mocap_noise_variance_scale", minimum=1e-6),
+        initial_velocity_sigma_mps=initial.number("velocity_sigma_mps", minimum=1e-6),
+        reinit_velocity_sigma_mps=initial.number("reinit_velocity_sigma_mps", minimum=1e-6),
+        gate_chi2_probability=gating.number("chi2_probability", minimum=0.5, maximum=1.0 - 1e-15),
+        reinit_after_blackout_s=gating.number("reinit_after_blackout_s", minimum=0.0),
+        reinit_after_rejections=gating.integer("reinit_after_rejections", minimum=1),
+        blackout_s=health.number("blackout_s", minimum=0.0),
+        max_position_sigma_m=health.number("max_position_sigma_m", minimum=0.0),
+        buffer_length_s=buffer.number("length_s", minimum=0.0),
+        imu_gap_factor=imu.number("gap_factor", minimum=1.0),
+        imu_max_step_s=imu.number("max_step_s", minimum=1e-5),
+        source=p.source,
+    )
+
+
+@dataclass(frozen=True)
+class EstimatorHealth:
+    """Counters and flags of the filter; counts are since initialise()."""
+
+    initialised: bool
+    mocap_age_s: float  # newest sample time minus the newest accepted mocap sample time
+    blackout: bool  # mocap_age_s > health.blackout_s
+    accepted_mocap: int
+    rejected_outliers: int  # failed the chi-square gate
+    consecutive_rejections: int
+    reinitialisations: int  # in-flight re-initialisations (not counting the first pose)
+    duplicate_mocap: int
+    stale_mocap: int  # older than the buffer: dropped
+    invalid_mocap: int  # non-finite numbers or a zero quaternion: dropped
+    imu_gaps: int  # intervals longer than imu.gap_factor periods, counted once out of the buffer
+    lost_imu: int  # frames missing in those gaps
+    reordered_imu: int  # arrived after a newer one, inserted in the buffer
+    stale_imu: int  # arrived older than the buffer: dropped
+    duplicate_imu: int
+    invalid_imu: int
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The filter's state at `time_s` (vehicle clock). Arrays are copies the caller may keep."""
+
+    time_s: float
+    position_enu_m: np.ndarray  # (3,)
+    velocity_enu_mps: np.ndarray  # (3,)
+    attitude_wxyz: np.ndarray  # (4,) body FLU -> world ENU
+    rate_flu_radps: np.ndarray  # (3,) newest gyro sample minus the gyro bias
+    accel_bias_flu_mps2: np.ndarray  # (3,)
+    gyro_bias_flu_radps: np.ndarray  # (3,)
+    covariance: np.ndarray  # (15, 15) of the error state, order ERROR_STATE_LABELS
+    std_dev: np.ndarray  # (15,) sqrt of the covariance diagonal
+    healthy: bool  # initialised, no mocap blackout, position sigma within health.max_position_sigma_m
+    health: EstimatorHealth
+
+
+class _Node:
+    """One sample on the timeline and the filter state just after it."""
+
+    __slots__ = ("time_s", "kind", "f", "w", "position", "attitude", "status", "x", "P", "start_s",
+                 "transition")
+
+    def __init__(self, time_s: float, kind: int, f=None, w=None, position=None, attitude=None,
+                 status: int = _NEW):
+        self.time_s = time_s
+        self.kind = kind
+        self.f = f  # specific force FLU at time_s (interpolated for mocap nodes)
+        self.w = w  # angular rate FLU at time_s
+        self.position = position  # mocap only
+        self.attitude = attitude  # mocap only
+        self.status = status  # mocap only: _NEW until gated
+        self.x = None  # nominal state, 16 floats: p, v, q(wxyz), b_a, b_g
+        self.P = None  # (15, 15) error covariance
+        self.start_s = None  # time of the node before, when `transition` was computed
+        self.transition = None  # (F, Q) from the node before to this one
+
+
+def _finite(values) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def _pose_valid(pose: MocapPose) -> bool:
+    values = (pose.time_s, *pose.position_enu_m, *pose.attitude_wxyz)
+    return len(values) == 8 and _finite(values) and any(pose.attitude_wxyz)
+
+
+class ErrorStateKF:
+    """The estimator. Feed add_imu / add_mocap in arrival order; read estimate() / predict_to()."""
+
+    def __init__(self, vehicle: Vehicle, mocap_room: MocapRoom, params: EskfParams | None = None):
+        self.params = params if params is not None else load_eskf_params()
+        self.vehicle = vehicle
+        self.mocap_room = mocap_room
+        imu, prm = vehicle.imu, self.params
+        self._g = GRAVITY_MPS2
+        self._imu_period_s = 1.0 / imu.rate_hz
+        scale = prm.process_noise_variance_scale
+        self._accel_psd = scale * imu.accel_noise_density**2
+        self._gyro_psd = scale * imu.gyro_noise_density**2
+        self._accel_bias_psd = scale * imu.accel_bias_random_walk**2
+        self._gyro_bias_psd = scale * imu.gyro_bias_random_walk**2
+        var_p = prm.mocap_noise_variance_scale * mocap_room.position_noise_m**2
+        var_t = prm.mocap_noise_variance_scale * mocap_room.attitude_noise_rad**2
+        if var_p <= 0.0 or var_t <= 0.0:
+            raise UserError(f"mocap room '{mocap_room.name}': position_noise_m and attitude_noise_rad "
+                            "must be positive for the estimator")
+        self._R = np.diag([var_p] * 3 + [var_t] * 3)
+        self._H = np.zeros((N_MOCAP, N_ERROR))
+        self._H[0:3, POSITION] = np.eye(3)
+        self._H[3:6, ATTITUDE] = np.eye(3)
+        self._gate_d2 = float(chi2.ppf(prm.gate_chi2_probability, N_MOCAP))
+        bias_var = [imu.accel_bias_initial_sigma**2] * 3 + [imu.gyro_bias_initial_sigma**2] * 3
+        velocity_var = [prm.initial_velocity_sigma_mps**2] * 3
+        self._P0_diag = np.array([var_p] * 3 + velocity_var + [var_t] * 3 + bias_var)
+        self._kf = KalmanFilter(dim_x=N_ERROR, dim_z=N_MOCAP)
+        self._zero_dx = np.zeros((N_ERROR, 1))  # never written in place (filterpy rebinds x)
+        self._F = np.eye(N_ERROR)
+        self._F_flat = self._F.reshape(-1)
+        self._F_index = self._f_index()
+        self._Q = np.zeros((N_ERROR, N_ERROR))
+        self._Q_flat = self._Q.reshape(-1)
+        self._Q_index = self._q_index()
+        self._reset_bookkeeping()
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def initialised(self) -> bool:
+        return bool(self._nodes)
+
+    def initialise(self, pose: MocapPose) -> None:
+        """Start (or restart) the filter at `pose`, assuming the vehicle is at rest with zero biases."""
+        if not _pose_valid(pose):
+            raise UserError(f"MocapPose at t={pose.time_s!r}: position/attitude must be finite and the "
+                            "quaternion non-zero to initialise the estimator")
+        self._reset_bookkeeping()
+        node = _Node(float(pose.time_s), _MOCAP, status=_INIT)
+        node.x = (*map(float, pose.position_enu_m), 0.0, 0.0, 0.0,
+                  *quat_normalise(tuple(map(float, pose.attitude_wxyz))), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        node.P = np.diag(self._P0_diag)
+        self._nodes = [node]
+        self._times = [node.time_s]
+        self._last_accepted_s = node.time_s
+
+    def add_imu(self, sample: ImuSample) -> None:
+        """Propagate to the sample's time (or insert it in the buffer and replay if it is late)."""
+        t = float(sample.time_s)
+        f = tuple(map(float, sample.specific_force_flu_mps2))
+        w = tuple(map(float, sample.rate_flu_radps))
+        if not (math.isfinite(t) and len(f) == 3 and len(w) == 3 and _finite(f) and _finite(w)):
+            self._count["invalid_imu"] += 1
+            return
+        if not self._nodes:
+            return  # nothing to propagate before the first pose
+        node = _Node(t, _IMU, f, w)
+        if t > self._times[-1]:
+            self._append_imu(node)
+        else:
+            self._insert_imu(node)
+        self._trim()
+
+    def add_mocap(self, pose: MocapPose) -> bool:
+        """Fuse a pose at its sample time. True if accepted (or used to re-initialise)."""
+        if not _pose_valid(pose):
+            self._count["invalid_mocap"] += 1
+            return False
+        t = float(pose.time_s)
+        if not self._nodes or (len(self._nodes) == 1 and self._nodes[0].f is None and t > self._times[0]):
+            self.initialise(pose)  # no IMU yet: the newest pose is the best start
+            return True
+        if t < self._times[0]:
+            self._count["stale_mocap"] += 1
+            return False
+        if self._holds_mocap_at(t):
+            self._count["duplicate_mocap"] += 1
+            return False
+        node = _Node(t, _MOCAP, position=tuple(map(float, pose.position_enu_m)),
+                     attitude=quat_normalise(tuple(map(float, pose.attitude_wxyz))))
+        if t > self._times[-1]:
+            self._queue_future_mocap(node)
+        else:
+            i = bisect.bisect_right(self._times, t)
+            self._nodes.insert(i, node)
+            self._times.insert(i, t)
+            self._replay_from(i)
+        return node.status in (_ACCEPTED, _REINIT)
+
+    def estimate(self) -> Estimate:
+        """The state after the newest sample (all NaN and healthy=False before the first pose)."""
+        if not self._nodes:
+            return self._nan_estimate()
+        node = self._nodes[-1]
+        return self._make_estimate(node.time_s, node.x, node.P, node.w)
+
+    def predict_to(self, t_s: float) -> Estimate:
+        """The state propagated to t_s (vehicle clock) holding the newest IMU sample; the filter is unchanged.
+
+        One integration step whatever the horizon (meant for the few tens of ms of link latency: with a
+        held signal the rotation is exact and the trapezoid's velocity error ~ g (w dt)^2 / 12).
+        For t_s at or before the newest sample this is estimate() (no backward prediction).
+        """
+        if not self._nodes:
+            return self._nan_estimate()
+        node = self._nodes[-1]
+        dt = float(t_s) - node.time_s
+        if node.f is None or not dt > 0.0:
+            return self.estimate()
+        x, r0, f, w = self._nominal_step(node.x, node.f, node.w, node.f, node.w, dt)
+        F, Q = self._transition(r0, f, w, dt)
+        _, P = filterpy_predict(self._zero_dx, node.P, F, Q)  # functional form: self._kf stays untouched
+        return self._make_estimate(float(t_s), x, P, node.w)
+
+    def health(self) -> EstimatorHealth:
+        """Counters and flags (see EstimatorHealth); also inside every Estimate."""
+        # A frame from the future (queued until the IMU catches up) must not make the age negative.
+        age = max(0.0, self._times[-1] - self._last_accepted_s) if self._nodes else math.inf
+        c = self._count
+        return EstimatorHealth(
+            initialised=bool(self._nodes), mocap_age_s=age, blackout=age > self.params.blackout_s,
+            accepted_mocap=c["accepted_mocap"], rejected_outliers=c["rejected_outliers"],
+            consecutive_rejections=self._consecutive_rejections, reinitialisations=c["reinitialisations"],
+            duplicate_mocap=c["duplicate_mocap"], stale_mocap=c["stale_mocap"],
+            invalid_mocap=c["invalid_mocap"],
+            imu_gaps=c["imu_gaps"], lost_imu=c["lost_imu"], reordered_imu=c["reordered_imu"],
+            stale_imu=c["stale_imu"], duplicate_imu=c["duplicate_imu"], invalid_imu=c["invalid_imu"],
+        )
+
+    # ------------------------------------------------------------------ timeline bookkeeping
+
+    def _reset_bookkeeping(self) -> None:
+        self._nodes: list[_Node] = []
+        self._times: list[float] = []
+        self._pending: list[_Node] = []  # gated mocap frames newer than the newest IMU sample
+        self._last_accepted_s = -math.inf
+        self._consecutive_rejections = 0
+        self._last_trimmed_imu_s: float | None = None
+        self._count = dict.fromkeys(
+            ("accepted_mocap", "rejected_outliers", "reinitialisations", "duplicate_mocap", "stale_mocap",
+             "invalid_mocap", "imu_gaps", "lost_imu", "reordered_imu", "stale_imu", "duplicate_imu",
+             "invalid_imu"), 0)
+
+    def _append_imu(self, node: _Node) -> None:
+        """The usual case: a sample newer than everything held. Releases queued future mocap frames."""
+        base = self._nodes[0]
+        if base.f is None:  # the initial pose gets the first sample as its IMU signal
+            base.f, base.w = node.f, node.w
+        start = len(self._nodes)
+        t = node.time_s
+        released = [m for m in self._pending if m.time_s <= t]
+        if released:
+            self._pending = [m for m in self._pending if m.time_s > t]
+        for m in [m for m in released if m.time_s < t] + [node] + [m for m in released if m.time_s == t]:
+            self._nodes.append(m)
+            self._times.append(m.time_s)
+        self._replay_from(start)
+
+    def _insert_imu(self, node: _Node) -> None:
+        """A sample older than the newest: insert it by time and replay, or drop it if too old / repeated."""
+        t = node.time_s
+        if t < self._times[0]:
+            self._count["stale_imu"] += 1
+            return
+        i = bisect.bisect_left(self._times, t)
+        k = i
+        while k < len(self._times) and self._times[k] == t:
+            if self._nodes[k].kind == _IMU:
+                self._count["duplicate_imu"] += 1
+                return
+            k += 1
+        if i == 0:  # same time as the base node (a pose): nothing before it to replay from
+            self._count["stale_imu"] += 1
+            return
+        self._nodes.insert(i, node)
+        self._times.insert(i, t)
+        self._count["reordered_imu"] += 1
+        # Mocap nodes just before the new sample interpolated their IMU signal past it: redo them too.
+        start = i
+        while start > 1 and self._nodes[start - 1].kind == _MOCAP:
+            start -= 1
+            self._nodes[start].transition = None  # its signal changes: F and Q too
+        self._replay_from(start)
+
+    def _holds_mocap_at(self, t: float) -> bool:
+        i = bisect.bisect_left(self._times, t)
+        while i < len(self._times) and self._times[i] == t:
+            if self._nodes[i].kind == _MOCAP:
+                return True
+            i += 1
+        return any(m.time_s == t for m in self._pending)
+
+    def _queue_future_mocap(self, node: _Node) -> None:
+        """Gate a frame newer than the newest IMU sample against a prediction; apply it later."""
+        last = self._nodes[-1]
+        x, P, _ = self._propagate(last.x, last.P, last.f, last.w, last.f, last.w, node.time_s - last.time_s)
+        node.status = self._decide(self._innovate(x, P, node), node.time_s)
+        bisect.insort(self._pending, node, key=lambda m: m.time_s)
+
+    def _replay_from(self, i: int) -> None:
+        """Recompute the state of nodes i..end from node i-1 (rollback + re-propagation).
+
+        Covariance transitions stored by an earlier pass over an unchanged interval are reused: they were
+        linearised at the nominal state before this replay's corrections, a second-order difference for
+        gated corrections, but not after a re-initialisation, which may move the attitude far.
+        """
+        self._reuse_transitions = True
+        for j in range(i, len(self._nodes)):
+            self._process(j)
+
+    def _process(self, j: int) -> None:
+        node, prev = self._nodes[j], self._nodes[j - 1]
+        if node.kind == _MOCAP:
+            node.f, node.w = self._signal_at(j)
+        stored = node.transition if self._reuse_transitions and node.start_s == prev.time_s else None
+        x, P, node.transition = self._propagate(prev.x, prev.P, prev.f, prev.w, node.f, node.w,
+                                                node.time_s - prev.time_s, stored)
+        node.start_s = prev.time_s
+        if node.kind == _MOCAP:
+            if node.status == _NEW:
+                node.status = self._decide(self._innovate(x, P, node), node.time_s)
+                if node.status == _ACCEPTED:
+                    x, P = self._inject(x)
+            elif node.status == _ACCEPTED:
+                self._innovate(x, P, node)
+                x, P = self._inject(x)
+            if node.status == _REINIT:
+                x, P = self._reinitialised(x, P, node)
+                self._reuse_transitions = False
+        node.x, node.P = x, P
+
+    def _signal_at(self, j: int) -> tuple[tuple, tuple]:
+        """IMU signal at a mocap node: linear between the node before and the next IMU sample."""
+        prev = self._nodes[j - 1]
+        for k in range(j + 1, len(self._nodes)):
+            nxt = self._nodes[k]
+            if nxt.kind == _IMU:
+                span = nxt.time_s - prev.time_s
+                s = (self._nodes[j].time_s - prev.time_s) / span if span > 0.0 else 0.0
+                return _lerp(prev.f, nxt.f, s), _lerp(prev.w, nxt.w, s)
+        return prev.f, prev.w
+
+    def _trim(self) -> None:
+        """Forget nodes older than the buffer, keeping one before the cut as the rollback base."""
+        k = bisect.bisect_left(self._times, self._times[-1] - self.params.buffer_length_s) - 1
+        if k < _TRIM_CHUNK:
+            return
+        for node in self._nodes[:k]:
+            if node.kind == _IMU:
+                self._count_gap(node.time_s)
+        del self._nodes[:k]
+        del self._times[:k]
+
+    def _count_gap(self, t: float) -> None:
+        last, self._last_trimmed_imu_s = self._last_trimmed_imu_s, t
+        if last is not None and t - last > self.params.imu_gap_factor * self._imu_period_s:
+            self._count["imu_gaps"] += 1
+            self._count["lost_imu"] += max(1, round((t - last) / self._imu_period_s) - 1)
+
+    # ------------------------------------------------------------------ mocap decisions
+
+    def _decide(self, d2: float, t: float) -> int:
+        """Accept, reject or re-initialise on a frame with squared Mahalanobis distance d2."""
+        if d2 <= self._gate_d2:
+            status = _ACCEPTED
+        elif (t - self._last_accepted_s > self.params.reinit_after_blackout_s
+              or self._consecutive_rejections >= self.params.reinit_after_rejections):
+            status = _REINIT
+        else:
+            self._count["rejected_outliers"] += 1
+            self._consecutive_rejections += 1
+            return _REJECTED
+        self._count["reinitialisations" if status == _REINIT else "accepted_mocap"] += 1
+        self._consecutive_rejections = 0
+        self._last_accepted_s = max(self._last_accepted_s, t)
+        return status
+
+    def _innovate(self, x: tuple, P: np.ndarray, node: _Node) -> float:
+        """filterpy update with the mocap residual; returns d^2 = y' S^-1 y (posterior left in self._kf)."""
+        dtheta = attitude_error(x[6:10], node.attitude)
+        px, py, pz = node.position
+        z = np.array((px - x[0], py - x[1], pz - x[2], *dtheta)).reshape(N_MOCAP, 1)
+        kf = self._kf
+        kf.x = self._zero_dx
+        kf.P = P
+        kf.update(z, R=self._R, H=self._H)
+        y = kf.y[:, 0]
+        return float(y @ kf.SI @ y)
+
+    def _inject(self, x: tuple) -> tuple[tuple, np.ndarray]:
+        """Fold filterpy's posterior dx into the nominal state and reset the error (Sola sec. 6.2-6.3)."""
+        kf = self._kf
+        dx = kf.x[:, 0].tolist()
+        kf.x = self._zero_dx
+        q = quat_normalise(quat_multiply(x[6:10], quat_exp(dx[6], dx[7], dx[8])))
+        x_new = (*(x[k] + dx[k] for k in range(6)), *q, *(x[k + 1] + dx[k] for k in range(9, 15)))
+        hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
+        g = np.array(((1.0, hz, -hy), (-hz, 1.0, hx), (hy, -hx, 1.0)))  # I - [dtheta/2]x
+        P = kf.P
+        P[ATTITUDE, :] = g @ P[ATTITUDE, :]
+        P[:, ATTITUDE] = P[:, ATTITUDE] @ g.T
+        P = 0.5 * (P + P.T)
+        return x_new, P
+
+    def _reinitialised(self, x: tuple, P: np.ndarray, node: _Node) -> tuple[tuple, np.ndarray]:
+        x_new = (*node.position, *x[3:6], *node.attitude, *x[10:16])
+        P_new = np.diag(self._P0_diag)
+        P_new[VELOCITY, VELOCITY] = np.eye(3) * self.params.reinit_velocity_sigma_mps**2
+        P_new[9:15, 9:15] = P[9:15, 9:15]
+        return x_new, P_new
+
+    # ------------------------------------------------------------------ propagation
+
+    def _propagate(self, x: tuple, P: np.ndarray, f0, w0, f1, w1, dt: float,
+                   transition: tuple | None = None) -> tuple[tuple, np.ndarray, tuple | None]:
+        """Propagate over dt with signals (f0, w0) at the start and (f1, w1) at the end.
+
+        Intervals longer than imu.max_step_s are integrated in equal sub-steps (signals interpolated);
+        their F and Q are chained into one F = F_n..F_1, Q = F_n(..)F_n' + Q_n for a single filterpy
+        predict. Given `transition` (F, Q) - stored from an earlier pass over this same interval - the
+        covariance reuses it and only the nominal state is recomputed. Returns (x, P, (F, Q)).
+        """
+        if dt <= 0.0:
+            return x, P, transition
+        n = math.ceil(dt / self.params.imu_max_step_s - 1e-9)  # slack: 2.0000000001 steps are 2
+        if n <= 1:
+            x, r0, f, w = self._nominal_step(x, f0, w0, f1, w1, dt)
+            if transition is None:
+                F, Q = self._transition(r0, f, w, dt)
+                transition = (F.copy(), Q.copy())
+        else:
+            h = dt / n
+            fa, wa = f0, w0
+            F_total = Q_total = None
+            for k in range(1, n + 1):
+                fb, wb = _lerp(f0, f1, k / n), _lerp(w0, w1, k / n)
+                x, r0, f, w = self._nominal_step(x, fa, wa, fb, wb, h)
+                if transition is None:
+                    F, Q = self._transition(r0, f, w, h)
+                    if F_total is None:
+                        F_total, Q_total = F.copy(), Q.copy()
+                    else:
+                        F_total = F @ F_total
+                        Q_total = F @ Q_total @ F.T + Q
+                fa, wa = fb, wb
+            if transition is None:
+                transition = (F_total, Q_total)
+        kf = self._kf
+        kf.x = self._zero_dx
+        kf.P = P
+        kf.predict(F=transition[0], Q=transition[1])
+        return x, kf.P, transition
+
+    def _nominal_step(self, x: tuple, f0, w0, f1, w1, dt: float) -> tuple[tuple, tuple, tuple, tuple]:
+        """Trapezoidal nominal propagation (module docstring). Returns x1, R(q0), mean f and w (bias-free)."""
+        px, py, pz, vx, vy, vz, qw, qx, qy, qz, bax, bay, baz, bgx, bgy, bgz = x
+        wx = 0.5 * (w0[0] + w1[0]) - bgx
+        wy = 0.5 * (w0[1] + w1[1]) - bgy
+        wz = 0.5 * (w0[2] + w1[2]) - bgz
+        q0 = (qw, qx, qy, qz)
+        r0 = quat_to_matrix(q0)
+        q1 = quat_normalise(quat_multiply(q0, quat_exp(wx * dt, wy * dt, wz * dt)))
+        r1 = quat_to_matrix(q1)
+        a0 = rotate(r0, f0[0] - bax, f0[1] - bay, f0[2] - baz)
+        a1 = rotate(r1, f1[0] - bax, f1[1] - bay, f1[2] - baz)
+        ax = 0.5 * (a0[0] + a1[0])
+        ay = 0.5 * (a0[1] + a1[1])
+        az = 0.5 * (a0[2] + a1[2]) - self._g
+        half_dt2 = 0.5 * dt * dt
+        x1 = (px + vx * dt + ax * half_dt2, py + vy * dt + ay * half_dt2, pz + vz * dt + az * half_dt2,
+              vx + ax * dt, vy + ay * dt, vz + az * dt, *q1, bax, bay, baz, bgx, bgy, bgz)
+        f = (0.5 * (f0[0] + f1[0]) - bax, 0.5 * (f0[1] + f1[1]) - bay, 0.5 * (f0[2] + f1[2]) - baz)
+        return x1, r0, f, (wx, wy, wz)
+
+    def _transition(self, r: tuple, f: tuple, w: tuple, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """First-order error transition F and process noise Q over dt (see the module docstring).
+
+        r: R(q0) row-major; f: bias-corrected specific force FLU; w: bias-corrected rate FLU.
+        F and Q are reused buffers, valid until the next call.
+        """
+        fx, fy, fz = f
+        # M = R [f]x, row by row
+        m = []
+        for i in (0, 3, 6):
+            r0, r1, r2 = r[i], r[i + 1], r[i + 2]
+            m += (r1 * fz - r2 * fy, r2 * fx - r0 * fz, r0 * fy - r1 * fx)
+        h = -0.5 * dt * dt
+        values = [dt, dt, dt]  # dp <- dv diagonal
+        values += [h * v for v in m] + [h * v for v in r]  # dp <- dtheta, db_a
+        values += [-dt * v for v in m] + [-dt * v for v in r]  # dv <- dtheta, db_a
+        wx, wy, wz = w[0] * dt, w[1] * dt, w[2] * dt
+        values += [wz, -wy, -wz, wx, wy, -wx]  # dtheta <- dtheta off-diagonal: -[w dt]x
+        values += [-dt, -dt, -dt]  # dtheta <- db_g
+        self._F_flat[self._F_index] = values
+        sa, sg = self._accel_psd, self._gyro_psd
+        qv = sa * dt
+        self._Q_flat[self._Q_index] = [qv * dt * dt / 3.0] * 3 + [qv * dt * 0.5] * 6 + [qv] * 3 + \
+            [sg * dt] * 3 + [self._accel_bias_psd * dt] * 3 + [self._gyro_bias_psd * dt] * 3
+        return self._F, self._Q
+
+    @staticmethod
+    def _f_index() -> np.ndarray:
+        idx = [(i, 3 + i) for i in range(3)]
+        for r0, c0 in _F_BLOCKS:
+            idx += [(r0 + i, c0 + j) for i in range(3) for j in range(3)]
+        idx += [(6, 7), (6, 8), (7, 6), (7, 8), (8, 6), (8, 7)]
+        idx += [(6 + i, 12 + i) for i in range(3)]
+        return np.array([r * N_ERROR + c for r, c in idx])
+
+    @staticmethod
+    def _q_index() -> np.ndarray:
+        idx = [(i, i) for i in range(3)]
+        idx += [(i, 3 + i) for i in range(3)] + [(3 + i, i) for i in range(3)]
+        idx += [(i, i) for i in range(3, 15)]
+        return np.array([r * N_ERROR + c for r, c in idx])
+
+    # ------------------------------------------------------------------ output
+
+    def _make_estimate(self, t: float, x: tuple, P: np.ndarray, w) -> Estimate:
+        health = self.health()
+        std = np.sqrt(np.diag(P))
+        bg = np.array(x[13:16])
+        healthy = (not health.blackout) and float(std[POSITION].max()) <= self.params.max_position_sigma_m
+        return Estimate(
+            time_s=t, position_enu_m=np.array(x[0:3]), velocity_enu_mps=np.array(x[3:6]),
+            attitude_wxyz=np.array(x[6:10]), rate_flu_radps=(np.array(w) - bg) if w is not None else -bg,
+            accel_bias_flu_mps2=np.array(x[10:13]), gyro_bias_flu_radps=bg, covariance=P.copy(), std_dev=std,
+            healthy=healthy, health=health,
+        )
+
+    def _nan_estimate(self) -> Estimate:
+        nan3 = np.full(3, np.nan)
+        return Estimate(
+            time_s=math.nan, position_enu_m=nan3, velocity_enu_mps=nan3.copy(),
+            attitude_wxyz=np.full(4, np.nan),
+            rate_flu_radps=nan3.copy(), accel_bias_flu_mps2=nan3.copy(), gyro_bias_flu_radps=nan3.copy(),
+            covariance=np.full((N_ERROR, N_ERROR), np.nan), std_dev=np.full(N_ERROR, np.nan), healthy=False,
+            health=self.health(),
+        )
+
+
+def _lerp(a: tuple, b: tuple, s: float) -> tuple:
+    return (a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2]))

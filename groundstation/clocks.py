@@ -1,0 +1,152 @@
+"""The flight loop's clocks: realtime (monotonic wall clock) and lockstep (the emulator's sim clock).
+
+Takes in: the loop period; for lockstep, the clock transport and the vehicle link (to count frames).
+Gives out: `wait()` -> the time of the tick to compute (s); `done(next_wakeup_s)` when the tick's
+commands are sent; tick timing statistics (tick duration, lateness, deadline misses).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from link.clock import NS_PER_S, ClockAck, unpack_tick
+from link.errors import UserError
+
+log = logging.getLogger("cfstack.groundstation")
+
+
+class TickTimer:
+    """Measures how long each tick's work takes and whether it met its deadline."""
+
+    def __init__(self, period_s: float):
+        self.period_s = period_s
+        self.work_s: list[float] = []
+        self.misses = 0
+        self._t0 = 0.0
+
+    def start(self) -> None:
+        self._t0 = time.perf_counter()
+
+    def stop(self) -> float:
+        work = time.perf_counter() - self._t0
+        self.work_s.append(work)
+        if work > self.period_s:
+            self.misses += 1
+        return work
+
+    def summary(self) -> dict:
+        w = np.array(self.work_s or [0.0]) * 1e3
+        return {"ticks": len(self.work_s), "tick_ms_p50": float(np.percentile(w, 50)),
+                "tick_ms_p99": float(np.percentile(w, 99)), "deadline_misses": self.misses,
+                "deadline_miss_rate": self.misses / max(1, len(self.work_s))}
+
+
+class RealtimeClock:
+    """Ticks at a fixed period of the monotonic clock; t = seconds since start()."""
+
+    kind = "realtime"
+
+    def __init__(self, period_s: float, link):
+        self.period_s = period_s
+        self.link = link
+        self.timer = TickTimer(period_s)
+        self.late_ticks = 0
+        self.ticks = 0
+
+    def start(self) -> None:
+        self.t0 = time.monotonic()
+        self.next_s = 0.0
+
+    def now(self) -> float:
+        return time.monotonic() - self.t0
+
+    def wait(self) -> float:
+        while True:
+            remaining = self.next_s - self.now()
+            if remaining <= 0:
+                break
+            self.link.pump(min(remaining, 0.002))
+        if -remaining > self.period_s:  # a whole period late: skip ahead rather than burst
+            self.late_ticks += 1
+            self.next_s = self.now()
+        t = self.next_s
+        self.next_s += self.period_s
+        self.ticks += 1
+        self.link.pump(0.0)
+        self.timer.start()
+        return t
+
+    def done(self, next_wakeup_s: float) -> None:  # noqa: ARG002 - the period decides
+        self.timer.stop()
+
+    def leave(self) -> None:
+        pass
+
+    def achieved_rate_hz(self) -> float:
+        elapsed = self.now()
+        return self.ticks / elapsed if elapsed > 0 else 0.0
+
+
+class LockstepClock:
+    """Follows the emulator's simulation clock; t is simulation time from the tick."""
+
+    kind = "lockstep"
+
+    def __init__(self, period_s: float, link, clock_transport, wait_timeout_s: float = 30.0):
+        self.period_s = period_s
+        self.link = link
+        self.transport = clock_transport
+        self.wait_timeout_s = wait_timeout_s
+        self.timer = TickTimer(period_s)
+        self.tick = -1
+        self.t_s = 0.0
+        self.ticks = 0
+
+    def start(self) -> None:
+        self.transport.send(ClockAck(-1, self.link.uplink_sent, 0).pack())
+
+    def now(self) -> float:
+        return self.t_s
+
+    def wait(self) -> float:
+        tick = self._next_tick()
+        target = (tick.downlink_published, tick.mocap_published, tick.truth_published)
+        self.link.pump(0.0)
+        deadline = time.monotonic() + self.wait_timeout_s
+        while any(have < want for have, want in zip(self.link.raw_counts(), target, strict=True)):
+            self.link.pump(0.001)
+            if time.monotonic() > deadline:
+                raise UserError(f"lockstep: frames of tick {tick.tick} never arrived "
+                                f"(have {self.link.raw_counts()}, expected {target})")
+        self.tick = tick.tick
+        self.t_s = tick.time_s
+        self.ticks += 1
+        self.timer.start()
+        return self.t_s
+
+    def _next_tick(self):
+        waited = 0.0
+        while True:
+            for data in self.transport.receive(0.5):
+                tick = unpack_tick(data)
+                if tick is not None and tick.tick > self.tick:
+                    return tick
+            waited += 0.5
+            if self.tick < 0:  # the join may have gone out before the emulator subscribed: say it again
+                self.start()
+            if waited >= self.wait_timeout_s:
+                raise UserError(f"lockstep: no simulation clock on '{self.transport.rx}' for "
+                                f"{self.wait_timeout_s:.0f} s: is an emulator running with --clock lockstep?")
+            if waited % 5.0 < 0.5:
+                log.info("lockstep: waiting for the emulator's clock on %s", self.transport.rx)
+
+    def done(self, next_wakeup_s: float) -> None:
+        self.timer.stop()
+        wake_ns = max(round(next_wakeup_s * NS_PER_S), round(self.t_s * NS_PER_S) + 1)
+        self.transport.send(ClockAck(self.tick, self.link.uplink_sent, wake_ns).pack())
+
+    def leave(self) -> None:
+        self.transport.send(ClockAck(self.tick, self.link.uplink_sent, 0, leaving=True).pack())

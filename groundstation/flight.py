@@ -1,0 +1,258 @@
+"""The flight loop: estimator -> mission/trajectory -> controller -> send, at a fixed rate.
+
+Takes in: a VehicleLink (downlink IMU, heartbeats, TIMESYNC replies, status; mocap poses; truth for
+logs only), a clock (realtime or lockstep), the estimator, the controller, the mission, and a FlightLog.
+Gives out: thrust/moment or thrust/attitude setpoints and vehicle commands on the uplink, one log row
+per tick, and a FlightRecord (per-tick arrays) for the summary.
+
+The ground station never uses simulator truth for control: truth goes to the log and the grading only.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import signal
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from estimator.eskf import POSITION, ErrorStateKF
+from groundstation.controller import ControllerState, SE3Controller
+from groundstation.flightlog import FlightLog
+from groundstation.mission import Mission, MissionParams, Phase, VehicleView
+from link.messages import (
+    AttitudeTarget,
+    BatteryStatus,
+    Heartbeat,
+    ImuSample,
+    MocapPose,
+    RadioStatus,
+    ThrustMoment,
+    TimeSync,
+    TruthState,
+    VehicleCommand,
+    VehicleMode,
+)
+from link.stats import TimeSyncTracker
+
+log = logging.getLogger("cfstack.groundstation")
+NS = 1_000_000_000
+
+
+@dataclass
+class LinkHealth:
+    """Numbers the loop keeps about the link, from what arrives (sequence-based loss is in link stats)."""
+
+    last_downlink_s: float | None = None
+    last_heartbeat: Heartbeat | None = None
+    last_status: BatteryStatus | None = None
+    last_radio: RadioStatus | None = None
+    rtt_s: list[float] = field(default_factory=list)
+    offset_s: float = 0.0  # vehicle clock - ground station clock
+    have_offset: bool = False
+    mocap_times: list[float] = field(default_factory=list)
+    warned: set[str] = field(default_factory=set)
+
+
+@dataclass
+class FlightRecord:
+    t: list[float] = field(default_factory=list)
+    phase: list[str] = field(default_factory=list)
+    ref: list[np.ndarray] = field(default_factory=list)
+    est: list[np.ndarray] = field(default_factory=list)
+    est_vel: list[np.ndarray] = field(default_factory=list)
+    truth: list[np.ndarray | None] = field(default_factory=list)
+    truth_vel: list[np.ndarray | None] = field(default_factory=list)
+
+
+class FlightLoop:
+    def __init__(self, link, clock, estimator: ErrorStateKF, controller: SE3Controller, mission: Mission,
+                 params: MissionParams, flight_log: FlightLog, mode: str, period_s: float):
+        self.link = link
+        self.clock = clock
+        self.estimator = estimator
+        self.controller = controller
+        self.mission = mission
+        self.p = params
+        self.log = flight_log
+        self.mode = mode
+        self.period_s = period_s
+        self.health = LinkHealth()
+        self.truth: TruthState | None = None
+        self.record = FlightRecord()
+        self.next_heartbeat_s = 0.0
+        self.next_timesync_s = 0.0
+        self.commands_stopped = False
+        self.timesync = TimeSyncTracker(clock=clock.now, stats=link.radio.stats)
+        self.interrupts = 0
+
+    # --- inputs ----------------------------------------------------------------------------------
+    def absorb(self, now_s: float) -> None:
+        inbox = self.link.take()
+        for rx in inbox.downlink:
+            msg = rx.message
+            self.health.last_downlink_s = now_s
+            if isinstance(msg, ImuSample):
+                self.estimator.add_imu(msg)
+            elif isinstance(msg, Heartbeat):
+                self.health.last_heartbeat = msg
+            elif isinstance(msg, TimeSync):
+                self._timesync_reply(msg, now_s)
+            elif isinstance(msg, BatteryStatus):
+                self.health.last_status = msg
+            elif isinstance(msg, RadioStatus):
+                self.health.last_radio = msg
+        for rx in inbox.mocap:
+            if isinstance(rx.message, MocapPose):
+                self.estimator.add_mocap(rx.message)
+                self.health.mocap_times.append(now_s)
+        for rx in inbox.truth:
+            if isinstance(rx.message, TruthState):
+                self.truth = rx.message
+
+    def _timesync_reply(self, msg: TimeSync, now_s: float) -> None:  # noqa: ARG002
+        if msg.remote_ns == 0:
+            return  # a request, not a reply: the vehicle does not ask us
+        sample = self.timesync.on_reply(msg)
+        if sample is None:
+            return
+        self.health.rtt_s.append(sample.rtt_s)
+        self.health.offset_s = -sample.offset_s  # the tracker gives local - remote; we keep vehicle - ours
+        self.health.have_offset = True
+
+    def view(self, now_s: float) -> VehicleView | None:
+        hb = self.health.last_heartbeat
+        if hb is None or not self.estimator.initialised:
+            return None
+        est = self.estimator.estimate()
+        downlink_age = now_s - (self.health.last_downlink_s or now_s)
+        # "Unhealthy" for the mission means the filter itself is in trouble (its position uncertainty is
+        # beyond its limit); a mocap blackout alone is handled by the mocap-age thresholds.
+        filter_ok = float(est.std_dev[POSITION].max()) <= self.estimator.params.max_position_sigma_m
+        return VehicleView(
+            t_s=now_s, position_enu_m=np.asarray(est.position_enu_m, float),
+            velocity_enu_mps=np.asarray(est.velocity_enu_mps, float), armed=hb.armed,
+            crashed=hb.mode == VehicleMode.CRASHED, mocap_age_s=self.mocap_age(now_s, est),
+            estimator_healthy=filter_ok, downlink_age_s=downlink_age,
+        )
+
+    def mocap_age(self, now_s: float, est) -> float:
+        """Seconds since the sample time of the newest accepted mocap frame, on the vehicle clock."""
+        last_mocap_s = est.time_s - est.health.mocap_age_s
+        return max(0.0, now_s + self.health.offset_s - last_mocap_s)
+
+    # --- outputs ---------------------------------------------------------------------------------
+    def send_housekeeping(self, now_s: float) -> None:
+        if now_s >= self.next_heartbeat_s:
+            self.link.send(Heartbeat(armed=False, is_ground_station=True))
+            self.next_heartbeat_s = now_s + self.p.heartbeat_period_s
+        if now_s >= self.next_timesync_s:
+            self.link.send(self.timesync.request())
+            self.next_timesync_s = now_s + self.p.timesync_period_s
+
+    def control(self, now_s: float, step) -> tuple:
+        est = self.estimator.estimate()
+        state = ControllerState(position_enu_m=est.position_enu_m, velocity_enu_mps=est.velocity_enu_mps,
+                                attitude_wxyz=est.attitude_wxyz, rate_flu_radps=est.rate_flu_radps)
+        out = self.controller.update(state, step.reference)
+        if self.mode == "moments":
+            self.link.send(ThrustMoment(now_s, out.thrust_n, tuple(out.moment_flu_nm)))
+        else:
+            self.link.send(AttitudeTarget(now_s, out.thrust_n, tuple(out.attitude_des_wxyz),
+                                          tuple(out.rate_des_flu_radps)))
+        return out
+
+    # --- the loop --------------------------------------------------------------------------------
+    def run(self) -> None:
+        previous = signal.getsignal(signal.SIGINT)
+        signal.signal(signal.SIGINT, self._interrupt)
+        try:
+            self.clock.start()
+            while not self.mission.finished:
+                self.tick()
+        finally:
+            signal.signal(signal.SIGINT, previous)
+            self.clock.leave()
+
+    def _interrupt(self, signum, frame) -> None:  # noqa: ARG002
+        self.interrupts += 1
+        if self.interrupts == 1:
+            log.warning("interrupted: landing and disarming (Ctrl-C again to disarm at once)")
+            self.mission.request_abort()
+        else:
+            self.mission.result = "aborted"
+            self.mission.phase = Phase.DISARM
+
+    def tick(self) -> None:
+        now = self.clock.wait()
+        self.absorb(now)
+        self.send_housekeeping(now)
+        view = self.view(now)
+        step = self.mission.update(now, view)
+        out = None
+        if step.command is not None:
+            self.link.send(VehicleCommand(now, step.command))
+        if step.reference is not None and view is not None and step.phase != Phase.DONE:
+            out = self.control(now, step)
+        self.write_row(now, step, out)
+        self.check_health(now)
+        self.clock.done(now + self.period_s)
+
+    def write_row(self, now: float, step, out) -> None:
+        est = self.estimator.estimate() if self.estimator.initialised else None
+        truth = self.truth
+        truth_vals = None
+        if truth is not None:
+            truth_vals = (*truth.position_enu_m, *truth.velocity_enu_mps, *truth.attitude_wxyz)
+        est_vals = sigma = None
+        if est is not None:
+            est_vals = (*est.position_enu_m, *est.velocity_enu_mps, *est.attitude_wxyz)
+            sigma = tuple(est.std_dev[:9])
+        ref = None
+        if step.reference is not None:
+            ref = (*step.reference.position_m, *step.reference.velocity_mps)
+        moment = attitude = None
+        if out is not None:
+            moment = (out.thrust_n, *out.moment_flu_nm)
+            attitude = tuple(out.attitude_des_wxyz)
+        stats = self.link.radio.stats  # raw counters: a snapshot computes percentiles, too slow per tick
+        rtt = self.health.rtt_s[-1] * 1e3 if self.health.rtt_s else None
+        tick_ms = self.clock.timer.work_s[-1] * 1e3 if (self.clock.kind == "realtime" and self.clock.timer.work_s) else math.nan
+        view_age = None if est is None else self.mocap_age(now, est)
+        self.log.row(now, step.phase.value, truth_vals, est_vals, sigma, ref, moment, attitude,
+                     None if out is None else bool(out.saturated), view_age,
+                     None if est is None else est.healthy, stats.tx_frames,
+                     stats.rx_frames, stats.sequences.lost, rtt,
+                     0.0 if math.isnan(tick_ms) else tick_ms)
+        self.record.t.append(now)
+        self.record.phase.append(step.phase.value)
+        self.record.ref.append(None if step.reference is None else np.array(step.reference.position_m, float))
+        self.record.est.append(None if est is None else np.array(est.position_enu_m, float))
+        self.record.est_vel.append(None if est is None else np.array(est.velocity_enu_mps, float))
+        self.record.truth.append(None if truth is None else np.array(truth.position_enu_m, float))
+        self.record.truth_vel.append(None if truth is None else np.array(truth.velocity_enu_mps, float))
+
+    def check_health(self, now: float) -> None:
+        """Warn once when mocap rate, latency or delivery leave sane bounds."""
+        times = self.health.mocap_times
+        while times and times[0] < now - 1.0:
+            times.pop(0)
+        if now > 2.0:
+            rate = len(times)
+            if not self.p.mocap_rate_min_hz <= rate <= self.p.mocap_rate_max_hz:
+                self._warn_once("mocap", f"mocap rate {rate} Hz outside {self.p.mocap_rate_min_hz:.0f}-"
+                                         f"{self.p.mocap_rate_max_hz:.0f} Hz")
+        if self.health.rtt_s and self.health.rtt_s[-1] * 1e3 / 2 > self.p.latency_max_ms:
+            self._warn_once("latency", f"one-way latency {self.health.rtt_s[-1] * 500:.1f} ms above "
+                                       f"{self.p.latency_max_ms:.0f} ms")
+        stats = self.link.radio.stats
+        total = stats.rx_frames + stats.sequences.lost
+        if total > 500 and stats.rx_frames / total < self.p.delivery_ratio_min:
+            self._warn_once("delivery", f"downlink delivery {stats.rx_frames / total:.2f} below "
+                                        f"{self.p.delivery_ratio_min:.2f}")
+
+    def _warn_once(self, key: str, message: str) -> None:
+        if key not in self.health.warned:
+            self.health.warned.add(key)
+            log.warning("link health: %s", message)

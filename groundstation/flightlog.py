@@ -1,0 +1,102 @@
+"""Flight logs: states.csv (one row per control tick), summary.json, plan.json.
+
+Takes in: per-tick values (time, phase, truth, estimate, reference, command, link health) as floats.
+Gives out: files in the log folder, written as they go and flushed every row, so a killed ground station
+leaves readable logs (at most the row being written is lost). Format: README "Flight logs".
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from datetime import datetime
+from pathlib import Path
+
+COLUMNS = (
+    "t_s,phase,"
+    "truth_x_m,truth_y_m,truth_z_m,truth_vx_mps,truth_vy_mps,truth_vz_mps,truth_qw,truth_qx,truth_qy,truth_qz,"
+    "est_x_m,est_y_m,est_z_m,est_vx_mps,est_vy_mps,est_vz_mps,est_qw,est_qx,est_qy,est_qz,"
+    "est_sigma_x_m,est_sigma_y_m,est_sigma_z_m,est_sigma_vx_mps,est_sigma_vy_mps,est_sigma_vz_mps,"
+    "est_sigma_roll_rad,est_sigma_pitch_rad,est_sigma_yaw_rad,"
+    "ref_x_m,ref_y_m,ref_z_m,ref_vx_mps,ref_vy_mps,ref_vz_mps,"
+    "cmd_thrust_n,cmd_mx_nm,cmd_my_nm,cmd_mz_nm,cmd_qw,cmd_qx,cmd_qy,cmd_qz,cmd_saturated,"
+    "mocap_age_s,est_healthy,uplink_sent,downlink_received,downlink_lost,rtt_ms,tick_time_ms"
+).split(",")
+
+_BLOCKS = {  # how many cells each group of values fills
+    "truth": 10, "est": 10, "sigma": 9, "ref": 6, "cmd_moment": 4, "cmd_att": 4,
+}
+
+
+def default_log_dir(root: str | Path = "flights") -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S-%f")
+    return Path(root) / stamp
+
+
+def _cells(values, count: int) -> list[str]:
+    if values is None:
+        return [""] * count
+    out = [repr(float(v)) for v in values]
+    if len(out) != count:
+        raise ValueError(f"expected {count} values, got {len(out)}")
+    return out
+
+
+class FlightLog:
+    """Writes the log folder incrementally. Use as a context manager."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._states = open(self.folder / "states.csv", "w", buffering=1, newline="")
+        self._states.write(",".join(COLUMNS) + "\n")
+        self._flush()
+
+    @property
+    def tlog_path(self) -> Path:
+        return self.folder / "link.tlog"
+
+    def _flush(self) -> None:
+        self._states.flush()
+        os.fsync(self._states.fileno()) if os.environ.get("CFSTACK_FSYNC") else None
+
+    def row(self, t_s: float, phase: str, truth, estimate, sigma, reference, moment_cmd, attitude_cmd,
+            saturated: bool | None, mocap_age_s: float | None, healthy: bool | None, uplink_sent: int,
+            downlink_received: int, downlink_lost: int, rtt_ms: float | None, tick_time_ms: float) -> None:
+        cells = [repr(float(t_s)), phase]
+        cells += _cells(truth, 10) + _cells(estimate, 10) + _cells(sigma, 9) + _cells(reference, 6)
+        cells += _cells(moment_cmd, 4) + _cells(attitude_cmd, 4)
+        cells += ["" if saturated is None else str(int(saturated))]
+        cells += ["" if mocap_age_s is None else repr(float(mocap_age_s))]
+        cells += ["" if healthy is None else str(int(healthy))]
+        cells += [str(uplink_sent), str(downlink_received), str(downlink_lost)]
+        cells += ["" if rtt_ms is None else repr(float(rtt_ms)), repr(float(tick_time_ms))]
+        self._states.write(",".join(cells) + "\n")
+
+    def write_json(self, name: str, data: dict) -> None:
+        tmp = self.folder / f".{name}.tmp"
+        tmp.write_text(json.dumps(data, indent=2, allow_nan=False, default=_jsonable) + "\n")
+        tmp.replace(self.folder / name)
+
+    def close(self) -> None:
+        if not self._states.closed:
+            self._states.close()
+
+    def __enter__(self) -> FlightLog:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _jsonable(value):
+    try:
+        import numpy as np
+
+        if isinstance(value, np.ndarray):
+            return value.tolist()
+        if isinstance(value, np.generic):
+            return value.item()
+    except ImportError:  # pragma: no cover
+        pass
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

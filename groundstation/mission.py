@@ -1,0 +1,282 @@
+"""The mission: connect, arm, take off, settle, track, hover, land, disarm - and the failsafes.
+
+Takes in: the time (s), the state estimate and its health, what the vehicle reports (heartbeat,
+downlink age), the trajectory to track and mission parameters (params/mission.toml).
+Gives out: each tick, the phase, the reference to fly (a FlatOutput) or None (send nothing), and a
+vehicle command to send (arm, disarm) when one is due.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from groundstation.trajectories.basic import Hover, Line
+from groundstation.trajectory import FlatOutput, Trajectory
+from link.config import Params, resolve
+from link.messages import CommandKind
+
+
+class Phase(Enum):
+    CONNECT = "connect"
+    ARM = "arm"
+    TAKEOFF = "takeoff"
+    SETTLE = "settle"
+    TRACK = "track"
+    HOVER = "hover"
+    LAND = "land"
+    DISARM = "disarm"
+    DONE = "done"
+    FAILSAFE_HOLD = "failsafe_hold"
+    FAILSAFE_DESCENT = "failsafe_descent"
+
+
+@dataclass(frozen=True)
+class MissionParams:
+    connect_timeout_s: float
+    arm_timeout_s: float
+    settle_s: float
+    end_hover_s: float
+    max_end_hover_s: float
+    heartbeat_period_s: float
+    timesync_period_s: float
+    land_timeout_s: float
+    takeoff_height_m: float
+    takeoff_speed_mps: float
+    landing_speed_mps: float
+    touchdown_height_m: float
+    failsafe_descent_speed_mps: float
+    goal_position_tolerance_m: float
+    goal_speed_tolerance_mps: float
+    mocap_hold_after_s: float
+    mocap_descend_after_s: float
+    downlink_silent_after_s: float
+    mocap_rate_min_hz: float
+    mocap_rate_max_hz: float
+    delivery_ratio_min: float
+    latency_max_ms: float
+
+
+def load_mission_params(name_or_path: str = "mission") -> MissionParams:
+    p = Params.load(resolve(name_or_path, "groundstation", "params", "mission parameters"))
+    timing, motion, goal = p.table("timing"), p.table("motion"), p.table("goal")
+    failsafe, health = p.table("failsafe"), p.table("link_health")
+    pos = {"minimum": 0.0}
+    return MissionParams(
+        **{k: timing.number(k, **pos) for k in ("connect_timeout_s", "arm_timeout_s", "settle_s", "end_hover_s",
+                                                 "max_end_hover_s", "heartbeat_period_s", "timesync_period_s",
+                                                 "land_timeout_s")},
+        **{k: motion.number(k, **pos) for k in ("takeoff_height_m", "takeoff_speed_mps", "landing_speed_mps",
+                                                 "touchdown_height_m", "failsafe_descent_speed_mps")},
+        goal_position_tolerance_m=goal.number("position_tolerance_m", **pos),
+        goal_speed_tolerance_mps=goal.number("speed_tolerance_mps", **pos),
+        **{k: failsafe.number(k, **pos) for k in ("mocap_hold_after_s", "mocap_descend_after_s",
+                                                   "downlink_silent_after_s")},
+        **{k: health.number(k, **pos) for k in ("mocap_rate_min_hz", "mocap_rate_max_hz", "delivery_ratio_min",
+                                                 "latency_max_ms")},
+    )
+
+
+@dataclass
+class VehicleView:
+    """What the ground station knows of the vehicle this tick (never simulator truth)."""
+
+    t_s: float
+    position_enu_m: np.ndarray
+    velocity_enu_mps: np.ndarray
+    armed: bool
+    crashed: bool
+    mocap_age_s: float
+    estimator_healthy: bool
+    downlink_age_s: float
+
+
+@dataclass
+class MissionStep:
+    phase: Phase
+    reference: FlatOutput | None  # None: send no setpoint this tick
+    command: CommandKind | None = None
+
+
+class Mission:
+    """A state machine over Phase. `track` is a trajectory in world coordinates starting at its t=0."""
+
+    def __init__(self, params: MissionParams, track: Trajectory, floor_z_m: float, goal_enu_m: np.ndarray):
+        self.p = params
+        self.track = track
+        self.floor_z_m = floor_z_m
+        self.goal = np.asarray(goal_enu_m, float)
+        self.phase = Phase.CONNECT
+        self.phase_start_s = 0.0
+        self.segment: Trajectory | None = None
+        self.track_start_s: float | None = None
+        self.reached_goal_s: float | None = None
+        self.result: str | None = None  # reached_goal | timeout | failsafe | aborted | crashed
+        self.failsafe_reason: str | None = None
+        self.abort_requested = False
+        self._last_arm_s = -1.0
+
+    # --- helpers ---------------------------------------------------------------------------------
+    def _enter(self, phase: Phase, t: float, segment: Trajectory | None = None) -> None:
+        self.phase = phase
+        self.phase_start_s = t
+        self.segment = segment
+
+    def _segment_ref(self, t: float) -> FlatOutput:
+        return self.segment.sample(t - self.phase_start_s)
+
+    def _hold(self, position: np.ndarray, t: float) -> Trajectory:
+        return Hover(np.asarray(position, float), duration_s=1e9)
+
+    def _descent(self, view: VehicleView, speed: float) -> Trajectory:
+        target = view.position_enu_m.copy()
+        target[2] = self.floor_z_m
+        return Line(view.position_enu_m, target, speed_mps=speed)
+
+    @property
+    def finished(self) -> bool:
+        return self.phase == Phase.DONE
+
+    def request_abort(self) -> None:
+        """Ctrl-C: land and disarm first."""
+        self.abort_requested = True
+
+    # --- the state machine -----------------------------------------------------------------------
+    def update(self, t: float, view: VehicleView | None) -> MissionStep:
+        if self.phase == Phase.DONE:
+            return MissionStep(Phase.DONE, None)
+        if self.phase == Phase.CONNECT:
+            return self._connect(t, view)
+        if view.crashed:
+            self.result = "crashed"
+            self._enter(Phase.DONE, t)
+            return MissionStep(Phase.DONE, None)
+        failsafe = self._check_failsafes(t, view)
+        if failsafe is not None:
+            return failsafe
+        if self.abort_requested and self.phase in (Phase.ARM, Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.HOVER):
+            self.result = self.result or "aborted"
+            if self.phase == Phase.ARM or not view.armed:
+                self._enter(Phase.DISARM, t)
+            else:
+                self._enter(Phase.LAND, t, self._descent(view, self.p.landing_speed_mps))
+        handler = {
+            Phase.ARM: self._arm, Phase.TAKEOFF: self._takeoff, Phase.SETTLE: self._settle,
+            Phase.TRACK: self._track, Phase.HOVER: self._hover, Phase.LAND: self._land,
+            Phase.DISARM: self._disarm, Phase.FAILSAFE_HOLD: self._failsafe_hold,
+            Phase.FAILSAFE_DESCENT: self._land,
+        }[self.phase]
+        return handler(t, view)
+
+    def _connect(self, t: float, view: VehicleView | None) -> MissionStep:
+        if view is not None:
+            self._enter(Phase.ARM, t)
+            return self._arm(t, view)
+        if t > self.p.connect_timeout_s:
+            self.result = "aborted"
+            self.failsafe_reason = "no heartbeat from the vehicle"
+            self._enter(Phase.DONE, t)
+        return MissionStep(self.phase, None)
+
+    def _arm(self, t: float, view: VehicleView) -> MissionStep:
+        hold = FlatOutput(position_m=view.position_enu_m.copy())
+        if view.armed:
+            start = self.track.sample(0.0).position_m
+            if np.linalg.norm(view.position_enu_m - start) > self.p.goal_position_tolerance_m:
+                distance = np.linalg.norm(start - view.position_enu_m)
+                speed = self.p.takeoff_speed_mps
+                self._enter(Phase.TAKEOFF, t, Line(view.position_enu_m, start, speed_mps=speed)
+                            if distance > 1e-6 else Hover(start, 0.0))
+                return MissionStep(self.phase, self._segment_ref(t))
+            self._enter(Phase.SETTLE, t, self._hold(start, t))
+            return MissionStep(self.phase, self._segment_ref(t))
+        if t - self.phase_start_s > self.p.arm_timeout_s:
+            self.result = "failsafe"
+            self.failsafe_reason = "vehicle did not arm"
+            self._enter(Phase.DONE, t)
+            return MissionStep(self.phase, None)
+        command = None
+        if t - self._last_arm_s >= 0.25:  # re-send: the uplink may lose it
+            command = CommandKind.ARM
+            self._last_arm_s = t
+        return MissionStep(self.phase, hold, command)
+
+    def _takeoff(self, t: float, view: VehicleView) -> MissionStep:
+        if t - self.phase_start_s >= self.segment.duration_s:
+            self._enter(Phase.SETTLE, t, self._hold(self.track.sample(0.0).position_m, t))
+        return MissionStep(self.phase, self._segment_ref(t))
+
+    def _settle(self, t: float, view: VehicleView) -> MissionStep:
+        if t - self.phase_start_s >= self.p.settle_s:
+            self._enter(Phase.TRACK, t, self.track)
+            self.track_start_s = t
+        return MissionStep(self.phase, self._segment_ref(t))
+
+    def _track(self, t: float, view: VehicleView) -> MissionStep:
+        self._note_goal(t, view)
+        if t - self.phase_start_s >= self.track.duration_s:
+            self._enter(Phase.HOVER, t, self._hold(self.track.sample(self.track.duration_s).position_m, t))
+        return MissionStep(self.phase, self._segment_ref(t))
+
+    def _hover(self, t: float, view: VehicleView) -> MissionStep:
+        self._note_goal(t, view)
+        waited = t - self.phase_start_s
+        if (self.reached_goal_s is not None and waited >= self.p.end_hover_s) or waited >= self.p.max_end_hover_s:
+            if self.result is None:
+                self.result = "reached_goal" if self.reached_goal_s is not None else "timeout"
+            self._enter(Phase.LAND, t, self._descent(view, self.p.landing_speed_mps))
+        return MissionStep(self.phase, self._segment_ref(t))
+
+    def _land(self, t: float, view: VehicleView) -> MissionStep:
+        touched = view.position_enu_m[2] - self.floor_z_m <= self.p.touchdown_height_m
+        if touched or t - self.phase_start_s > self.p.land_timeout_s:
+            self._enter(Phase.DISARM, t)
+            return self._disarm(t, view)
+        return MissionStep(self.phase, self._segment_ref(t))
+
+    def _disarm(self, t: float, view: VehicleView) -> MissionStep:
+        if not view.armed and t > self.phase_start_s:
+            self._enter(Phase.DONE, t)
+            return MissionStep(self.phase, None)
+        return MissionStep(self.phase, None, CommandKind.DISARM)
+
+    def _failsafe_hold(self, t: float, view: VehicleView) -> MissionStep:
+        if view.mocap_age_s <= self.p.mocap_hold_after_s and view.estimator_healthy:
+            # mocap is back: resume where the plan would be (the track clock kept running)
+            resume = self._resume_phase
+            self._enter(resume[0], resume[1], resume[2])
+            return MissionStep(self.phase, self._segment_ref(t))
+        return MissionStep(self.phase, self._segment_ref(t))
+
+    def _note_goal(self, t: float, view: VehicleView) -> None:
+        if self.reached_goal_s is not None:
+            return
+        near = np.linalg.norm(view.position_enu_m - self.goal) <= self.p.goal_position_tolerance_m
+        slow = np.linalg.norm(view.velocity_enu_mps) <= self.p.goal_speed_tolerance_mps
+        if near and slow:
+            self.reached_goal_s = t
+
+    def _check_failsafes(self, t: float, view: VehicleView) -> MissionStep | None:
+        if self.phase in (Phase.DONE, Phase.DISARM, Phase.CONNECT):
+            return None
+        if view.downlink_age_s > self.p.downlink_silent_after_s:
+            self.result = "failsafe"
+            self.failsafe_reason = f"downlink silent for {view.downlink_age_s:.2f} s"
+            self._enter(Phase.DONE, t)
+            return MissionStep(Phase.DONE, None)
+        if not view.armed or self.phase in (Phase.ARM, Phase.FAILSAFE_DESCENT):
+            return None
+        lost = view.mocap_age_s
+        if lost > self.p.mocap_descend_after_s or not view.estimator_healthy:
+            self.result = "failsafe"
+            self.failsafe_reason = ("estimator unhealthy" if lost <= self.p.mocap_descend_after_s
+                                    else f"mocap lost for {lost:.2f} s")
+            self._enter(Phase.FAILSAFE_DESCENT, t, self._descent(view, self.p.failsafe_descent_speed_mps))
+            return MissionStep(self.phase, self._segment_ref(t))
+        if lost > self.p.mocap_hold_after_s and self.phase != Phase.FAILSAFE_HOLD:
+            self._resume_phase = (self.phase, self.phase_start_s, self.segment)
+            self._enter(Phase.FAILSAFE_HOLD, t, self._hold(view.position_enu_m, t))
+            return MissionStep(self.phase, self._segment_ref(t))
+        return None

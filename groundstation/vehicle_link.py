@@ -1,0 +1,77 @@
+"""The ground station's side of the link to one vehicle.
+
+Takes in: a connection string and zenoh options, the vehicle id and key prefix, actuator limits and
+signing, a clock for receive times, and an optional .tlog path.
+Gives out: `send(message)` on the uplink; `poll()` returning decoded downlink, mocap and (simulation-only)
+truth messages; raw frame counts per key (for the lockstep clock) and link statistics.
+Mocap comes from the ground network and truth from the simulator: neither passes the radio.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from link.codec import ActuatorLimits, Codec, FrameParser
+from link.endpoint import Endpoint
+from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.messages import Received
+from link.tlog import TlogWriter
+from link.transports import open_transport
+
+
+@dataclass
+class Inbox:
+    downlink: list[Received] = field(default_factory=list)
+    mocap: list[Received] = field(default_factory=list)
+    truth: list[Received] = field(default_factory=list)
+
+
+class VehicleLink:
+    def __init__(self, connection: str, keys: VehicleKeys, limits: ActuatorLimits, clock: Callable[[], float],
+                 *, zenoh_options: dict | None = None, signing=None, tlog_path=None, with_truth: bool = True):
+        opts = zenoh_options or {}
+        self.keys = keys
+        self.clock = clock
+        self.tlog = TlogWriter(tlog_path) if tlog_path else None
+        codec = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits, signing=signing)
+        self.radio = Endpoint(open_transport(connection, tx=keys.uplink, rx=keys.downlink, **opts), codec,
+                              FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog)
+        ground = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits)
+        self.mocap = Endpoint(open_transport(connection, rx=keys.mocap, **opts), ground,
+                              FrameParser(ground), clock=clock)
+        self.truth = None
+        if with_truth:
+            self.truth = Endpoint(open_transport(connection, rx=keys.truth, **opts), ground,
+                                  FrameParser(ground), clock=clock)
+        self.inbox = Inbox()
+
+    def send(self, message) -> None:
+        self.radio.send(message, target_system=self.keys.vehicle_id)
+
+    @property
+    def uplink_sent(self) -> int:
+        return self.radio.transport.stats.frames_sent
+
+    def raw_counts(self) -> tuple[int, int, int]:
+        """Frames (zenoh samples) received so far on the downlink, mocap and truth keys."""
+        truth = self.truth.transport.stats.chunks_received if self.truth else 0
+        return (self.radio.transport.stats.chunks_received, self.mocap.transport.stats.chunks_received, truth)
+
+    def pump(self, timeout_s: float = 0.0) -> None:
+        """Move whatever has arrived into the inbox (waiting at most timeout_s on the downlink)."""
+        self.inbox.downlink.extend(self.radio.receive(timeout_s))
+        self.inbox.mocap.extend(self.mocap.receive(0.0))
+        if self.truth is not None:
+            self.inbox.truth.extend(self.truth.receive(0.0))
+
+    def take(self) -> Inbox:
+        inbox, self.inbox = self.inbox, Inbox()
+        return inbox
+
+    def close(self) -> None:
+        for endpoint in (self.radio, self.mocap, self.truth):
+            if endpoint is not None:
+                endpoint.transport.close()
+        if self.tlog is not None:
+            self.tlog.close()

@@ -1,0 +1,67 @@
+"""The lockstep simulation clock: a small protocol beside MAVLink, never subject to radio loss.
+
+Takes in: the emulator's tick (tick index, simulation time, how many frames it has published on each
+of a vehicle's keys so far) and a ground station's acknowledgement (tick index, how many uplink frames
+it has sent so far, when it next wants to be woken).
+Gives out: fixed-size little-endian records for the clock keys (link.keys), and their decoding.
+
+Why counts: zenoh keeps order per key, not across keys. A ground station that has seen tick k waits
+until it holds `downlink_published` downlink frames, so it never computes on a partial tick; the
+emulator likewise waits for `uplink_sent` uplink frames before stepping on. That makes lockstep runs
+byte-identical whatever the scheduling.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+_TICK = struct.Struct("<4sqqqqq")
+_ACK = struct.Struct("<4sqqqB")
+_TICK_MAGIC = b"CLK1"
+_ACK_MAGIC = b"ACK1"
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class ClockTick:
+    tick: int
+    time_ns: int
+    downlink_published: int
+    mocap_published: int
+    truth_published: int
+
+    @property
+    def time_s(self) -> float:
+        return self.time_ns / NS_PER_S
+
+    def pack(self) -> bytes:
+        return _TICK.pack(_TICK_MAGIC, self.tick, self.time_ns, self.downlink_published,
+                          self.mocap_published, self.truth_published)
+
+
+@dataclass(frozen=True)
+class ClockAck:
+    """A ground station's reply to tick `tick` (-1 = join). `leaving` = it takes no further part."""
+
+    tick: int
+    uplink_sent: int
+    next_wakeup_ns: int
+    leaving: bool = False
+
+    def pack(self) -> bytes:
+        return _ACK.pack(_ACK_MAGIC, self.tick, self.uplink_sent, self.next_wakeup_ns, int(self.leaving))
+
+
+def unpack_tick(data: bytes) -> ClockTick | None:
+    if len(data) != _TICK.size or data[:4] != _TICK_MAGIC:
+        return None
+    _, *fields = _TICK.unpack(data)
+    return ClockTick(*fields)
+
+
+def unpack_ack(data: bytes) -> ClockAck | None:
+    if len(data) != _ACK.size or data[:4] != _ACK_MAGIC:
+        return None
+    _, tick, sent, wake, leaving = _ACK.unpack(data)
+    return ClockAck(tick, sent, wake, bool(leaving))

@@ -1,0 +1,307 @@
+"""Zenoh sessions of this process: settings, one shared session per settings, the common CLI flags.
+
+Takes in: session options (`mode`, `connect`, `listen`, `scouting`, `config_file`), from code or from
+the flags `add_zenoh_arguments` adds to a command (`--mode`, `--connect`, `--listen`, `--config`,
+`--scouting`).
+Gives out: an opened zenoh.Session shared (reference-counted) by every user asking for the same
+settings, closed when the last user releases it (or at interpreter exit); ZenohSettings; a
+`python -m link.zenoh_session --mode router --listen tcp/127.0.0.1:7447` router for tests and labs.
+
+Defaults (our choice, not zenoh's): peer mode, multicast scouting OFF, so a process only talks to the
+endpoints it is given. A config file (JSON5, zenoh's own format) is loaded first; any option given
+explicitly overrides the file's value.
+"""
+
+from __future__ import annotations
+
+import argparse
+import atexit
+import json
+import re
+import signal
+import sys
+import threading
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+from link.errors import UserError
+
+DEFAULT_MODE = "peer"
+MODES = ("peer", "client", "router")
+SESSION_OPTIONS = ("mode", "connect", "listen", "scouting", "config_file")
+# A zenoh endpoint is PROTOCOL/ADDRESS[?metadata][#config], e.g. tcp/127.0.0.1:7447, udp/[::1]:7447.
+ENDPOINT_PATTERN = re.compile(r"^[a-z][a-z0-9-]*/\S+$")
+ENDPOINT_EXAMPLE = "tcp/127.0.0.1:7447"
+
+
+def check_endpoint(endpoint: str) -> str:
+    """The endpoint itself, or a one-line UserError if it is not PROTOCOL/ADDRESS."""
+    if not ENDPOINT_PATTERN.match(endpoint):
+        raise UserError(f"zenoh endpoint '{endpoint}' is not PROTOCOL/ADDRESS (e.g. {ENDPOINT_EXAMPLE})")
+    return endpoint
+
+
+def split_endpoints(text: str) -> tuple[str, ...]:
+    """'tcp/a:1,tcp/b:2' -> checked endpoints; '' -> ()."""
+    return tuple(check_endpoint(part.strip()) for part in text.split(",") if part.strip())
+
+
+def _endpoint_list(value: str | Iterable[str] | None, what: str) -> tuple[str, ...] | None:
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return split_endpoints(value)
+    try:
+        return tuple(check_endpoint(str(item)) for item in value)
+    except TypeError:
+        raise UserError(f"zenoh option '{what}' must be a list of endpoints, got {value!r}") from None
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """What identifies a session. None means "not given": the config file's value, else our default."""
+
+    mode: str | None = None
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] | None = None
+    scouting: bool | None = None
+    config_file: str | None = None
+
+    @classmethod
+    def from_options(cls, endpoints: str = "", **options) -> ZenohSettings:
+        """Settings from a `zenoh:ENDPOINT[,ENDPOINT]` address (endpoints to connect to) plus options."""
+        unknown = set(options) - set(SESSION_OPTIONS)
+        if unknown:
+            raise UserError(f"unknown zenoh session option(s) {', '.join(sorted(unknown))} "
+                            f"(known: {', '.join(SESSION_OPTIONS)})")
+        mode = options.get("mode")
+        if mode is not None and mode not in MODES:
+            raise UserError(f"zenoh mode '{mode}' is not one of {', '.join(MODES)}")
+        connect = split_endpoints(endpoints) + (_endpoint_list(options.get("connect"), "connect") or ())
+        config_file = options.get("config_file")
+        if config_file is not None:
+            path = Path(config_file)
+            if not path.is_file():
+                raise UserError(f"{config_file}: zenoh config file not found")
+            config_file = str(path.resolve())
+        scouting = options.get("scouting")
+        settings = cls(mode=mode, connect=tuple(dict.fromkeys(connect)),
+                       listen=_endpoint_list(options.get("listen"), "listen"),
+                       scouting=None if scouting is None else bool(scouting), config_file=config_file)
+        settings._check_reachable()
+        return settings
+
+    def _check_reachable(self) -> None:
+        can_find_router = bool(self.connect or self.scouting or self.config_file)
+        if self.effective_mode == "client" and not can_find_router:
+            raise UserError("zenoh client mode needs a router to connect to "
+                            f"(give --connect ENDPOINT, e.g. {ENDPOINT_EXAMPLE}, or --scouting)")
+
+    @property
+    def effective_mode(self) -> str:
+        return self.mode or DEFAULT_MODE
+
+    def to_config(self) -> zenoh.Config:
+        """The zenoh.Config: the file (if any), then every explicitly given option on top."""
+        from_file = self.config_file is not None
+        try:
+            config = zenoh.Config.from_file(self.config_file) if from_file else zenoh.Config()
+        except zenoh.ZError as err:
+            reason = zenoh_error_text(err)
+            raise UserError(f"{self.config_file}: not a valid zenoh config ({reason})") from None
+        if self.mode is not None or not from_file:
+            _insert(config, "mode", self.effective_mode)
+        if self.scouting is not None or not from_file:
+            _insert(config, "scouting/multicast/enabled", bool(self.scouting))
+            if not self.scouting:
+                # zenoh.open otherwise spends scouting/delay (500 ms) waiting for peers that, with
+                # scouting off, can only come from the explicit endpoints it connects to anyway.
+                _insert(config, "scouting/delay", 0)
+        if self.connect:
+            _insert(config, "connect/endpoints", list(self.connect))
+        if self.listen is not None:
+            _insert(config, "listen/endpoints", list(self.listen))
+        return config
+
+    def describe(self) -> str:
+        parts = [f"mode={self.effective_mode}"]
+        if self.connect:
+            parts.append(f"connect={','.join(self.connect)}")
+        if self.listen is not None:
+            parts.append(f"listen={','.join(self.listen) or 'none'}")
+        if self.scouting:
+            parts.append("scouting")
+        if self.config_file:
+            parts.append(f"config={self.config_file}")
+        return " ".join(parts)
+
+
+def _insert(config: zenoh.Config, key: str, value) -> None:
+    try:
+        config.insert_json5(key, json.dumps(value))
+    except zenoh.ZError as err:
+        raise UserError(f"zenoh setting {key}={value!r} rejected: {zenoh_error_text(err)}") from None
+
+
+def zenoh_error_text(err: Exception) -> str:
+    """zenoh's message without its Rust source locations, on one line."""
+    text = str(err)
+    message = re.search(r'msg: "(.*?)"', text)  # Json5Err(Message { msg: "...", ... })
+    if message:
+        text = message.group(1)
+    text = re.sub(r"\s+at /\S+\.rs:\d+\.?", "", text)
+    return " ".join(text.split()).rstrip(".") or type(err).__name__
+
+
+# ----------------------------------------------------------------------------------------------------
+# One session per settings, shared and reference-counted.
+
+
+@dataclass
+class _SharedSession:
+    session: zenoh.Session
+    users: int
+
+
+_SESSIONS: dict[ZenohSettings, _SharedSession] = {}
+_SESSIONS_LOCK = threading.Lock()
+
+
+def acquire_session(settings: ZenohSettings) -> zenoh.Session:
+    """The session for these settings, opened on first use; pair every call with release_session."""
+    with _SESSIONS_LOCK:
+        shared = _SESSIONS.get(settings)
+        if shared is None:
+            try:
+                session = zenoh.open(settings.to_config())
+            except zenoh.ZError as err:
+                raise UserError(f"cannot open zenoh session ({settings.describe()}): "
+                                f"{zenoh_error_text(err)}") from None
+            shared = _SESSIONS[settings] = _SharedSession(session, 0)
+        shared.users += 1
+        return shared.session
+
+
+def release_session(settings: ZenohSettings) -> None:
+    """Drop one use; the last one closes the session."""
+    with _SESSIONS_LOCK:
+        shared = _SESSIONS.get(settings)
+        if shared is None:
+            return
+        shared.users -= 1
+        if shared.users > 0:
+            return
+        del _SESSIONS[settings]
+    shared.session.close()
+
+
+@contextmanager
+def shared_session(settings: ZenohSettings) -> Iterator[zenoh.Session]:
+    """`with shared_session(settings) as session:` - acquire and release around a block."""
+    session = acquire_session(settings)
+    try:
+        yield session
+    finally:
+        release_session(settings)
+
+
+def session_users(settings: ZenohSettings) -> int:
+    """How many users hold the session of these settings (0: not open)."""
+    with _SESSIONS_LOCK:
+        shared = _SESSIONS.get(settings)
+        return shared.users if shared else 0
+
+
+def close_all_sessions() -> None:
+    """Close every session still open (at interpreter exit: zenoh threads must stop before Python)."""
+    with _SESSIONS_LOCK:
+        leftovers = list(_SESSIONS.values())
+        _SESSIONS.clear()
+    for shared in leftovers:
+        shared.session.close()
+
+
+atexit.register(close_all_sessions)
+
+
+# ----------------------------------------------------------------------------------------------------
+# The flags every zenoh-speaking command takes.
+
+
+def _endpoint_argument(text: str) -> str:
+    try:
+        return check_endpoint(text)
+    except UserError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser, mode_flag: str = "--mode") -> argparse._ArgumentGroup:
+    """Add --mode, --connect, --listen, --config, --scouting/--no-scouting (dests prefixed zenoh_).
+
+    Commands whose own --mode means something else (the ground station's command mode) pass
+    mode_flag="--zenoh-mode"."""
+    group = parser.add_argument_group("zenoh", "how this process joins the zenoh network "
+                                      "(default: peer mode, no multicast scouting)")
+    group.add_argument(mode_flag, dest="zenoh_mode", choices=MODES, default=None,
+                       help=f"zenoh mode (default: {DEFAULT_MODE}, or the config file's)")
+    group.add_argument("--connect", dest="zenoh_connect", action="append", metavar="ENDPOINT",
+                       type=_endpoint_argument, default=None,
+                       help=f"endpoint to connect to, e.g. {ENDPOINT_EXAMPLE} (repeatable)")
+    group.add_argument("--listen", dest="zenoh_listen", action="append", metavar="ENDPOINT",
+                       type=_endpoint_argument, default=None,
+                       help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    group.add_argument("--config", dest="zenoh_config", metavar="FILE", default=None,
+                       help="zenoh JSON5 config file; the flags above override it")
+    group.add_argument("--scouting", dest="zenoh_scouting", action=argparse.BooleanOptionalAction,
+                       default=None, help="multicast scouting to find peers on the LAN (default: off)")
+    return group
+
+
+def zenoh_options_from_args(args: argparse.Namespace) -> dict:
+    """Options for open_transport("zenoh...", **options) / ZenohSettings.from_options: only those given."""
+    given = {
+        "mode": getattr(args, "zenoh_mode", None),
+        "connect": getattr(args, "zenoh_connect", None),
+        "listen": getattr(args, "zenoh_listen", None),
+        "config_file": getattr(args, "zenoh_config", None),
+        "scouting": getattr(args, "zenoh_scouting", None),
+    }
+    return {name: value for name, value in given.items() if value is not None}
+
+
+# ----------------------------------------------------------------------------------------------------
+# A stand-alone session, e.g. a router: `python -m link.zenoh_session --mode router --listen ...`.
+
+
+def serve(settings: ZenohSettings, stop: threading.Event) -> None:
+    """Hold a session open until `stop` is set; prints one 'ready' line once it listens."""
+    with shared_session(settings) as session:
+        print(f"zenoh {settings.effective_mode} ready: zid {session.zid()} ({settings.describe()})",
+              flush=True)
+        while not stop.wait(0.2):  # a timed wait, so the signal handlers run promptly
+            pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m link.zenoh_session",
+        description="Run a zenoh session (e.g. a router) until SIGTERM or Ctrl-C.")
+    add_zenoh_arguments(parser)
+    args = parser.parse_args(argv)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    try:
+        serve(ZenohSettings.from_options(**zenoh_options_from_args(args)), stop)
+    except UserError as err:
+        print(f"link.zenoh_session: {err}", file=sys.stderr)
+        return err.exit_code
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,371 @@
+"""Rigid-body quadrotor dynamics with floor contact and crash detection.
+
+Takes in: a Vehicle (link.vehicle), contact rules (ContactParams, from simulator/params/firmware.toml),
+an optional World, a fixed step dt (s), and commanded rotor speeds (rad/s) held over each step.
+Gives out: the state after each step - position r (world ENU, m), velocity v (ENU, m/s), attitude q
+(w, x, y, z; body FLU -> world ENU), body rates w (FLU, rad/s), rotor speeds (rad/s) - the specific
+force an accelerometer would read, whether the floor holds the vehicle, and a Crash when the flight ends.
+
+Physics (Mellinger & Kumar 2011 notation; body z = thrust axis):
+    r' = v
+    m v' = R(q) [f_drag_x, f_drag_y, sum_i k_T w_i^2]^T - m g e3
+    q' = 1/2 q (x) (0, w)
+    I w' = M - w x I w,   [T, M]^T = A [w_1^2 .. w_4^2]^T  (A = Vehicle.allocation)
+    motor lag (tau > 0):  w_i' = (w_cmd_i - w_i) / tau  (solved exactly over the step)
+    rotor drag (c > 0):   f_drag_xy = -c (sum_i w_i / w_hover) v_body_xy   (N; c per rotor at hover)
+Integrated by classical RK4 at a fixed step. The state lives in plain Python floats: a numpy call on a
+3-vector costs ~1 us, which would blow the < 50 us per step budget of the emulator.
+
+Floor (z = world bounds zmin, or 0 without a world): a resting vehicle stays put, level, at rest, until
+its thrust exceeds its weight. Touching the floor no faster than landing_speed_max_mps is a landing
+(the vehicle comes to rest, levelled, yaw kept; its tilt at touchdown is not judged); faster is a
+crash. A resting vehicle does not tip over or yaw whatever moments it is given. The vehicle centre
+coming within collision_radius_m of a block, or leaving the world bounds, is a crash. A crash stops the
+vehicle: motors off, state frozen where it happened, reported as a Crash(time_s, position_enu_m, reason).
+Block distances (numpy) are recomputed only once the vehicle has moved as far as its last clearance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from link.vehicle import GRAVITY_MPS2, Vehicle
+from link.world import World
+from simulator.rotation import IDENTITY, Quat, Vec3, level_with_yaw, quat_normalize
+
+
+@dataclass(frozen=True)
+class ContactParams:
+    """How the vehicle meets the floor and the blocks (simulator/params/firmware.toml [contact])."""
+
+    landing_speed_max_mps: float  # touching the floor faster than this is a crash
+    prop_radius_m: float
+    collision_radius_m: float | None = None  # None: rotor arm + prop radius
+
+    def radius_for(self, vehicle: Vehicle) -> float:
+        """Block-collision radius (m): the given one, else the largest rotor distance plus a propeller."""
+        if self.collision_radius_m is not None:
+            return self.collision_radius_m
+        arm = float(np.max(np.linalg.norm(vehicle.rotor_positions_flu_m, axis=1)))
+        return arm + self.prop_radius_m
+
+
+@dataclass(frozen=True)
+class Crash:
+    """The end of a flight: when (sim time, s), where (ENU, m) and why."""
+
+    time_s: float
+    position_enu_m: Vec3
+    reason: str
+
+
+class QuadrotorDynamics:
+    """One quadrotor body, stepped at a fixed dt. See the module docstring for the equations."""
+
+    def __init__(self, vehicle: Vehicle, contact: ContactParams, *, world: World | None = None,
+                 dt_s: float = 1e-3, position_enu_m: Vec3 = (0.0, 0.0, 0.0),
+                 attitude_wxyz: Quat = IDENTITY):
+        inertia = np.asarray(vehicle.inertia_kgm2, float)
+        if np.any(np.abs(inertia - np.diag(np.diag(inertia))) > 0.0):
+            raise ValueError(f"{vehicle.source}: the dynamics need a diagonal inertia (principal body axes)")
+        self.vehicle = vehicle
+        self.world = world
+        self.dt_s = float(dt_s)
+        self._mass = vehicle.mass_kg
+        self._weight = vehicle.weight_n
+        self._ixx, self._iyy, self._izz = (float(v) for v in np.diag(inertia))
+        a = vehicle.allocation
+        self._alloc = tuple(tuple(float(v) for v in row) for row in a)
+        self._w_min = vehicle.rotor_speed_min_radps
+        self._w_max = vehicle.rotor_speed_max_radps
+        tau = vehicle.motor_time_constant_s
+        self._lag = tau > 0.0
+        self._decay_half = math.exp(-0.5 * self.dt_s / tau) if self._lag else 0.0
+        self._decay_full = math.exp(-self.dt_s / tau) if self._lag else 0.0
+        self._drag_per_radps = (vehicle.rotor_drag_coefficient / vehicle.hover_rotor_speed_radps
+                                if vehicle.rotor_drag_coefficient > 0.0 else 0.0)
+        self.landing_speed_max_mps = contact.landing_speed_max_mps
+        self.collision_radius_m = contact.radius_for(vehicle)
+        self.floor_z_m = float(world.bounds[4]) if world is not None else 0.0
+        self._bounds = tuple(float(v) for v in world.bounds) if world is not None else None
+        self._has_blocks = world is not None and len(world.blocks) > 0
+        self._block_check_at: Vec3 | None = None
+        self._block_clearance_m = 0.0
+
+        self._n = 0
+        self._x = [float(v) for v in position_enu_m] + [0.0, 0.0, 0.0] + list(quat_normalize(attitude_wxyz)) \
+            + [0.0, 0.0, 0.0]
+        self._w = [0.0, 0.0, 0.0, 0.0]  # rotor speeds, rad/s
+        self._w_cmd = [0.0, 0.0, 0.0, 0.0]
+        self.crash: Crash | None = None
+        if self._x[2] < self.floor_z_m:
+            raise ValueError(f"start height {self._x[2]} m is below the floor at {self.floor_z_m} m")
+        self.on_ground = self._x[2] <= self.floor_z_m
+        if self.on_ground:
+            self._rest_on_floor()
+        self._check_world(0.0)
+
+    # --- state ------------------------------------------------------------------------------------
+    @property
+    def t_s(self) -> float:
+        """Simulation time (s): steps taken times dt."""
+        return self._n * self.dt_s
+
+    @property
+    def steps(self) -> int:
+        return self._n
+
+    @property
+    def position_enu_m(self) -> Vec3:
+        x = self._x
+        return (x[0], x[1], x[2])
+
+    @property
+    def velocity_enu_mps(self) -> Vec3:
+        x = self._x
+        return (x[3], x[4], x[5])
+
+    @property
+    def attitude_wxyz(self) -> Quat:
+        x = self._x
+        return (x[6], x[7], x[8], x[9])
+
+    @property
+    def rate_flu_radps(self) -> Vec3:
+        x = self._x
+        return (x[10], x[11], x[12])
+
+    @property
+    def rotor_speeds_radps(self) -> tuple[float, float, float, float]:
+        return tuple(self._w)
+
+    def set_state(self, *, position_enu_m: Vec3 | None = None, velocity_enu_mps: Vec3 | None = None,
+                  attitude_wxyz: Quat | None = None, rate_flu_radps: Vec3 | None = None,
+                  rotor_speeds_radps: tuple[float, ...] | None = None) -> None:
+        """Overwrite parts of the state (scenario set-up and tests); leaves the vehicle airborne."""
+        x = self._x
+        if position_enu_m is not None:
+            x[0:3] = [float(v) for v in position_enu_m]
+        if velocity_enu_mps is not None:
+            x[3:6] = [float(v) for v in velocity_enu_mps]
+        if attitude_wxyz is not None:
+            x[6:10] = list(quat_normalize(attitude_wxyz))
+        if rate_flu_radps is not None:
+            x[10:13] = [float(v) for v in rate_flu_radps]
+        if rotor_speeds_radps is not None:
+            self._w = [min(max(float(v), self._w_min), self._w_max) for v in rotor_speeds_radps]
+            self._w_cmd = list(self._w)
+        self.on_ground = False
+        self._block_check_at = None
+
+    # --- inputs -----------------------------------------------------------------------------------
+    def command_rotor_speeds(self, speeds_radps) -> None:
+        """Rotor speeds (rad/s) to hold from now on, clamped to the vehicle's [min, max].
+
+        Without motor lag they apply at once; with lag the rotors approach them with time constant tau.
+        Zeros mean motors off (even below a non-zero minimum speed).
+        """
+        lo, hi = self._w_min, self._w_max
+        cmd = [0.0 if s == 0.0 else (lo if s < lo else hi if s > hi else s) for s in speeds_radps]
+        self._w_cmd = cmd
+        if not self._lag:
+            self._w = list(cmd)
+
+    def stop_motors(self) -> None:
+        self._w_cmd = [0.0, 0.0, 0.0, 0.0]
+        self._w = [0.0, 0.0, 0.0, 0.0]
+
+    # --- outputs ----------------------------------------------------------------------------------
+    def wrench(self, speeds=None) -> tuple[float, float, float, float]:
+        """[T (N), Mx, My, Mz (N m)] = A w^2 for the given (default: current) rotor speeds."""
+        w = self._w if speeds is None else speeds
+        s0, s1, s2, s3 = w[0] * w[0], w[1] * w[1], w[2] * w[2], w[3] * w[3]
+        return tuple(r[0] * s0 + r[1] * s1 + r[2] * s2 + r[3] * s3 for r in self._alloc)
+
+    def specific_force_flu(self) -> Vec3:
+        """Non-gravitational force per unit mass in body FLU (m/s^2): what an ideal accelerometer reads.
+
+        Airborne: (rotor drag + thrust) / m. Resting or crashed: the floor's support, R^T (0, 0, g).
+        """
+        x = self._x
+        if self.on_ground or self.crash is not None:
+            qw, qx, qy, qz = x[6], x[7], x[8], x[9]
+            g = GRAVITY_MPS2
+            return (2.0 * (qx * qz - qw * qy) * g, 2.0 * (qy * qz + qw * qx) * g,
+                    (1.0 - 2.0 * (qx * qx + qy * qy)) * g)
+        w = self._w
+        thrust = self._alloc[0][0] * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + w[3] * w[3])
+        if self._drag_per_radps == 0.0:
+            return (0.0, 0.0, thrust / self._mass)
+        drag = self._drag_per_radps * (w[0] + w[1] + w[2] + w[3]) / self._mass
+        vbx, vby, _ = _world_to_body(x[6], x[7], x[8], x[9], x[3], x[4], x[5])
+        return (-drag * vbx, -drag * vby, thrust / self._mass)
+
+    # --- stepping ---------------------------------------------------------------------------------
+    def step(self) -> Crash | None:
+        """Advance one dt with the held rotor command; returns the Crash if this step ended the flight."""
+        self._n += 1
+        if self.crash is not None:
+            return None
+        w0 = self._w
+        if self._lag:
+            cmd = self._w_cmd
+            dh, df = self._decay_half, self._decay_full
+            w_mid = [c + (w - c) * dh for w, c in zip(w0, cmd, strict=True)]
+            w_end = [c + (w - c) * df for w, c in zip(w0, cmd, strict=True)]
+        else:
+            w_mid = w_end = w0
+        if self.on_ground:
+            if self._alloc[0][0] * (w0[0] ** 2 + w0[1] ** 2 + w0[2] ** 2 + w0[3] ** 2) <= self._weight:
+                self._w = w_end  # the floor holds it: no sinking, no sliding, stays level
+                return None
+            self.on_ground = False
+        self._x = self._rk4(self._x, w0, w_mid, w_end)
+        self._w = w_end
+        return self._check_world(self.t_s)
+
+    def _stage_inputs(self, w) -> tuple[float, float, float, float, float]:
+        """(T/m, Mx, My, Mz, drag/m) for rotor speeds w."""
+        s0, s1, s2, s3 = w[0] * w[0], w[1] * w[1], w[2] * w[2], w[3] * w[3]
+        a0, a1, a2, a3 = self._alloc
+        drag = self._drag_per_radps * (w[0] + w[1] + w[2] + w[3]) / self._mass
+        return ((a0[0] * s0 + a0[1] * s1 + a0[2] * s2 + a0[3] * s3) / self._mass,
+                a1[0] * s0 + a1[1] * s1 + a1[2] * s2 + a1[3] * s3,
+                a2[0] * s0 + a2[1] * s1 + a2[2] * s2 + a2[3] * s3,
+                a3[0] * s0 + a3[1] * s1 + a3[2] * s2 + a3[3] * s3,
+                drag)
+
+    def _rk4(self, x: list[float], w0, w_mid, w_end) -> list[float]:
+        """One classical RK4 step, unrolled on local floats (position's derivative is the stage velocity)."""
+        h = self.dt_s
+        h2 = 0.5 * h
+        u0 = self._stage_inputs(w0)
+        um = u0 if w_mid is w0 else self._stage_inputs(w_mid)
+        u1 = u0 if w_end is w0 else self._stage_inputs(w_end)
+        f = self._derivative
+        px, py, pz, vx, vy, vz, qw, qx, qy, qz, wx, wy, wz = x
+        a1x, a1y, a1z, d1w, d1x, d1y, d1z, e1x, e1y, e1z = f(qw, qx, qy, qz, wx, wy, wz, vx, vy, vz, *u0)
+        v2x, v2y, v2z = vx + h2 * a1x, vy + h2 * a1y, vz + h2 * a1z
+        a2x, a2y, a2z, d2w, d2x, d2y, d2z, e2x, e2y, e2z = f(
+            qw + h2 * d1w, qx + h2 * d1x, qy + h2 * d1y, qz + h2 * d1z,
+            wx + h2 * e1x, wy + h2 * e1y, wz + h2 * e1z, v2x, v2y, v2z, *um)
+        v3x, v3y, v3z = vx + h2 * a2x, vy + h2 * a2y, vz + h2 * a2z
+        a3x, a3y, a3z, d3w, d3x, d3y, d3z, e3x, e3y, e3z = f(
+            qw + h2 * d2w, qx + h2 * d2x, qy + h2 * d2y, qz + h2 * d2z,
+            wx + h2 * e2x, wy + h2 * e2y, wz + h2 * e2z, v3x, v3y, v3z, *um)
+        v4x, v4y, v4z = vx + h * a3x, vy + h * a3y, vz + h * a3z
+        a4x, a4y, a4z, d4w, d4x, d4y, d4z, e4x, e4y, e4z = f(
+            qw + h * d3w, qx + h * d3x, qy + h * d3y, qz + h * d3z,
+            wx + h * e3x, wy + h * e3y, wz + h * e3z, v4x, v4y, v4z, *u1)
+        h6 = h / 6.0
+        qw += h6 * (d1w + 2.0 * (d2w + d3w) + d4w)
+        qx += h6 * (d1x + 2.0 * (d2x + d3x) + d4x)
+        qy += h6 * (d1y + 2.0 * (d2y + d3y) + d4y)
+        qz += h6 * (d1z + 2.0 * (d2z + d3z) + d4z)
+        n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        return [
+            px + h6 * (vx + 2.0 * (v2x + v3x) + v4x),
+            py + h6 * (vy + 2.0 * (v2y + v3y) + v4y),
+            pz + h6 * (vz + 2.0 * (v2z + v3z) + v4z),
+            vx + h6 * (a1x + 2.0 * (a2x + a3x) + a4x),
+            vy + h6 * (a1y + 2.0 * (a2y + a3y) + a4y),
+            vz + h6 * (a1z + 2.0 * (a2z + a3z) + a4z),
+            qw / n, qx / n, qy / n, qz / n,
+            wx + h6 * (e1x + 2.0 * (e2x + e3x) + e4x),
+            wy + h6 * (e1y + 2.0 * (e2y + e3y) + e4y),
+            wz + h6 * (e1z + 2.0 * (e2z + e3z) + e4z),
+        ]
+
+    def _derivative(self, qw, qx, qy, qz, wx, wy, wz, vx, vy, vz, thrust_m, mx, my, mz, drag_m):
+        """(v', q', w') for the stage attitude, rates and velocity, mass-normalised thrust and drag, and
+        body moments; r' = v is taken by the caller."""
+        # thrust along body z, in world: T/m * R e3
+        ax = thrust_m * 2.0 * (qx * qz + qw * qy)
+        ay = thrust_m * 2.0 * (qy * qz - qw * qx)
+        az = thrust_m * (1.0 - 2.0 * (qx * qx + qy * qy)) - GRAVITY_MPS2
+        if drag_m != 0.0:
+            vbx, vby, _ = _world_to_body(qw, qx, qy, qz, vx, vy, vz)
+            fx, fy = -drag_m * vbx, -drag_m * vby  # body-frame drag acceleration, rotated to world
+            ax += (1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy
+            ay += 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy
+            az += 2.0 * (qx * qz - qw * qy) * fx + 2.0 * (qy * qz + qw * qx) * fy
+        ixx, iyy, izz = self._ixx, self._iyy, self._izz
+        return (
+            ax, ay, az,
+            0.5 * (-qx * wx - qy * wy - qz * wz),
+            0.5 * (qw * wx + qy * wz - qz * wy),
+            0.5 * (qw * wy - qx * wz + qz * wx),
+            0.5 * (qw * wz + qx * wy - qy * wx),
+            (mx - (izz - iyy) * wy * wz) / ixx,
+            (my - (ixx - izz) * wz * wx) / iyy,
+            (mz - (iyy - ixx) * wx * wy) / izz,
+        )
+
+    # --- contact ----------------------------------------------------------------------------------
+    def _rest_on_floor(self) -> None:
+        x = self._x
+        x[2] = self.floor_z_m
+        x[3:6] = [0.0, 0.0, 0.0]
+        x[6:10] = list(level_with_yaw((x[6], x[7], x[8], x[9])))
+        x[10:13] = [0.0, 0.0, 0.0]
+        self.on_ground = True
+
+    def _check_world(self, t_s: float) -> Crash | None:
+        x = self._x
+        if x[2] < self.floor_z_m:
+            sink_mps = -x[5]
+            if sink_mps <= self.landing_speed_max_mps:
+                self._rest_on_floor()
+            else:
+                x[2] = self.floor_z_m
+                return self._end_flight(t_s, f"hit the floor at {sink_mps:.2f} m/s "
+                                              f"(landing limit {self.landing_speed_max_mps:.2f} m/s)")
+        b = self._bounds
+        if b is not None and not (b[0] <= x[0] <= b[1] and b[2] <= x[1] <= b[3] and x[2] <= b[5]):
+            return self._end_flight(t_s, "left the world bounds")
+        if self._has_blocks:
+            return self._check_blocks(t_s)
+        return None
+
+    def _check_blocks(self, t_s: float) -> Crash | None:
+        """Block contact, computed with numpy only when the vehicle may have used up its last clearance."""
+        x = self._x
+        at = self._block_check_at
+        if at is not None:
+            dx, dy, dz = x[0] - at[0], x[1] - at[1], x[2] - at[2]
+            if dx * dx + dy * dy + dz * dz < self._block_clearance_m ** 2:
+                return None
+        p = np.array(x[0:3])
+        distance = float(self.world.distance_to_blocks(p))
+        self._block_check_at = (x[0], x[1], x[2])
+        self._block_clearance_m = distance - self.collision_radius_m
+        if self._block_clearance_m >= 0.0:
+            return None
+        lo, hi = self.world.blocks[:, 0::2], self.world.blocks[:, 1::2]
+        gaps = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+        index = int(np.argmin(gaps))
+        return self._end_flight(t_s, f"touched block {index} {self.world.blocks[index].tolist()} "
+                                     f"(centre {distance:.3f} m from it, collision radius "
+                                     f"{self.collision_radius_m:.3f} m)")
+
+    def _end_flight(self, t_s: float, reason: str) -> Crash:
+        self.crash = Crash(time_s=t_s, position_enu_m=self.position_enu_m, reason=reason)
+        self.stop_motors()
+        self._x[3:6] = [0.0, 0.0, 0.0]
+        self._x[10:13] = [0.0, 0.0, 0.0]
+        return self.crash
+
+
+def _world_to_body(qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, vz: float) -> Vec3:
+    """R(q)^T v for a unit quaternion, written out (the rows of R^T are the columns of R)."""
+    return (
+        (1.0 - 2.0 * (qy * qy + qz * qz)) * vx + 2.0 * (qx * qy + qw * qz) * vy
+        + 2.0 * (qx * qz - qw * qy) * vz,
+        2.0 * (qx * qy - qw * qz) * vx + (1.0 - 2.0 * (qx * qx + qz * qz)) * vy
+        + 2.0 * (qy * qz + qw * qx) * vz,
+        2.0 * (qx * qz + qw * qy) * vx + 2.0 * (qy * qz - qw * qx) * vy
+        + (1.0 - 2.0 * (qx * qx + qy * qy)) * vz,
+    )

@@ -1,0 +1,347 @@
+"""The emulated Crazyflie's onboard commander: arming, setpoint checking, watchdog, attitude loop, landing.
+
+Takes in: uplink ThrustMoment / AttitudeTarget setpoints and VehicleCommands with their ARRIVAL time at
+the vehicle (sim time, s); at each tick (commander.rate_hz, 500 Hz) the body's state - attitude,
+body rates, vertical velocity, whether the floor holds it, crash - as an ideal onboard estimate (the
+Crazyflie's own estimator is not emulated: the loop reads the true state).
+Gives out: rotor speed commands (rad/s; zeros = motors off) from each tick, Heartbeat and BatteryStatus
+on request, and the count of rejected commands.
+
+Parameters: simulator/params/firmware.toml (load_firmware_params), sources cited there.
+
+Behaviour:
+- Disarmed: motors off; setpoints are checked but not applied. ARM arms (motors idle until a setpoint),
+  DISARM cuts the motors at once (also in flight: the kill switch), LAND descends level at
+  landing.descent_speed_mps and disarms when the floor holds the vehicle (setpoints are ignored while
+  landing; LAND on the floor disarms at once).
+- MOMENTS: ThrustMoment setpoints go straight to the mixer. ATTITUDE: AttitudeTarget setpoints go to the
+  geometric attitude law (Lee, Leok & McClamroch 2010, as in the lab report)
+      M = I (-K_R e_R - K_w (w - w_des)) + w x I w,   e_R = 1/2 vee(R_des^T R - R^T R_des)
+  (computed as e_R = 2 q_e,w q_e,xyz with q_e = q_des^* (x) q, the same vector).
+- Watchdog (crazyflie-firmware commander.c), on the age of the last valid setpoint's arrival (or of
+  arming when none came): > watchdog_level_timeout_s -> LEVEL: roll = pitch = 0, yaw held at its value
+  on entry, last thrust kept; > watchdog_shutdown_timeout_s -> motors off and disarm. Heartbeat.failsafe
+  is raised in LEVEL, after a watchdog shutdown (until the next ARM) and after a crash.
+- Rejected (counted in rejected_commands, never applied): any NaN/inf, thrust < 0 or above the vehicle's
+  maximum, |moment| above the vehicle's maximum on an axis, | |q| - 1 | above quaternion_norm_tolerance,
+  |rate| above max_rate_radps, unknown command kinds, and ARM after a crash.
+- Battery: energy drawn = integral of (sum_i k_D w_i^3 / motor_efficiency + avionics_power_w) dt;
+  voltage falls linearly from full to empty with the energy left (no sag, no brown-out).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+from link.config import Params, resolve
+from link.messages import (
+    AttitudeTarget,
+    BatteryStatus,
+    CommandKind,
+    Heartbeat,
+    ThrustMoment,
+    VehicleCommand,
+    VehicleMode,
+)
+from link.vehicle import GRAVITY_MPS2, Vehicle
+from simulator.dynamics import ContactParams, Crash
+from simulator.mixer import Mixer
+from simulator.rotation import Quat, Vec3, quat_conjugate, quat_from_yaw, quat_multiply, yaw_of
+
+MOTORS_OFF = (0.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class FirmwareParams:
+    commander_rate_hz: float
+    watchdog_level_timeout_s: float
+    watchdog_shutdown_timeout_s: float
+    quaternion_norm_tolerance: float
+    max_rate_radps: float
+    limit_relative_tolerance: float
+    k_r_per_s2: Vec3
+    k_w_per_s: Vec3
+    landing_descent_speed_mps: float
+    landing_velocity_gain_per_s: float
+    landing_timeout_s: float
+    heartbeat_rate_hz: float
+    battery_rate_hz: float
+    truth_rate_hz: float
+    motor_efficiency: float
+    avionics_power_w: float
+    contact: ContactParams
+    source: str
+
+
+def load_firmware_params(name_or_path: str | Path = "firmware") -> FirmwareParams:
+    """Read simulator/params/firmware.toml (or the given file); ConfigError naming file and field."""
+    p = Params.load(resolve(name_or_path, "simulator", "params", "firmware parameters"))
+    p.string("name")
+    p.string("source")
+    commander = p.table("commander")
+    attitude = p.table("attitude")
+    landing = p.table("landing")
+    telemetry = p.table("telemetry")
+    battery = p.table("battery")
+    contact = p.table("contact")
+    level = commander.number("watchdog_level_timeout_s", minimum=0.0)
+    shutdown = commander.number("watchdog_shutdown_timeout_s", minimum=0.0)
+    if shutdown <= level:
+        raise commander.error("watchdog_shutdown_timeout_s", "must exceed watchdog_level_timeout_s")
+    k_r, k_w = attitude.vector("k_r_per_s2", 3), attitude.vector("k_w_per_s", 3)
+    for name, gains in (("k_r_per_s2", k_r), ("k_w_per_s", k_w)):
+        if min(gains) <= 0.0:
+            raise attitude.error(name, "gains must be positive")
+    radius = contact.number("collision_radius_m", minimum=0.0) if contact.has("collision_radius_m") else None
+    return FirmwareParams(
+        commander_rate_hz=commander.number("rate_hz", minimum=1.0),
+        watchdog_level_timeout_s=level,
+        watchdog_shutdown_timeout_s=shutdown,
+        quaternion_norm_tolerance=commander.number("quaternion_norm_tolerance", minimum=0.0, maximum=0.5),
+        max_rate_radps=commander.number("max_rate_radps", minimum=0.0),
+        limit_relative_tolerance=commander.number("limit_relative_tolerance", minimum=0.0, maximum=0.1),
+        k_r_per_s2=tuple(k_r),
+        k_w_per_s=tuple(k_w),
+        landing_descent_speed_mps=landing.number("descent_speed_mps", minimum=0.01),
+        landing_velocity_gain_per_s=landing.number("velocity_gain_per_s", minimum=0.0),
+        landing_timeout_s=landing.number("timeout_s", minimum=0.0),
+        heartbeat_rate_hz=telemetry.number("heartbeat_rate_hz", minimum=0.01),
+        battery_rate_hz=telemetry.number("battery_rate_hz", minimum=0.01),
+        truth_rate_hz=telemetry.number("truth_rate_hz", minimum=0.01),
+        motor_efficiency=battery.number("motor_efficiency", minimum=0.01, maximum=1.0),
+        avionics_power_w=battery.number("avionics_power_w", minimum=0.0),
+        contact=ContactParams(
+            landing_speed_max_mps=contact.number("landing_speed_max_mps", minimum=0.0),
+            prop_radius_m=contact.number("prop_radius_m", minimum=0.0),
+            collision_radius_m=radius,
+        ),
+        source=p.source,
+    )
+
+
+class BodyState(Protocol):
+    """What the commander reads of the vehicle each tick (simulator.dynamics.QuadrotorDynamics has it)."""
+
+    attitude_wxyz: Quat
+    rate_flu_radps: Vec3
+    velocity_enu_mps: Vec3
+    rotor_speeds_radps: tuple[float, ...]
+    on_ground: bool
+    crash: Crash | None
+
+
+def _finite(*values) -> bool:
+    try:
+        return all(math.isfinite(float(v)) for v in values)
+    except (TypeError, ValueError):
+        return False
+
+
+class Firmware:
+    def __init__(self, vehicle: Vehicle, params: FirmwareParams):
+        self.vehicle = vehicle
+        self.params = params
+        self.mixer = Mixer(vehicle)
+        self.tick_period_s = 1.0 / params.commander_rate_hz
+        self.armed = False
+        self.mode = VehicleMode.IDLE
+        self.rejected_commands = 0
+        self.ignored_setpoints = 0  # valid setpoints that arrived disarmed or while landing
+        self.last_ground_station_heartbeat_s: float | None = None
+        self._shutdown_latched = False
+        self._inertia = tuple(float(vehicle.inertia_kgm2[i, i]) for i in range(3))
+        slack = 1.0 + params.limit_relative_tolerance
+        self._max_thrust_n = vehicle.max_thrust_n * slack
+        self._max_moment_nm = tuple(float(v) * slack for v in vehicle.max_moment_nm)
+        self._k_d = vehicle.k_drag_torque
+        self._energy_total_j = (vehicle.battery_capacity_mah * 3.6
+                                * 0.5 * (vehicle.battery_full_v + vehicle.battery_empty_v))
+        self.energy_used_j = 0.0
+        self._clear_setpoint(0.0)
+        self._held_yaw_rad = 0.0
+        self._landing_since_s = 0.0
+
+    # --- uplink -----------------------------------------------------------------------------------
+    def receive(self, message, arrival_s: float) -> bool:
+        """Take one uplink message that arrived at sim time arrival_s; False if it was rejected."""
+        if isinstance(message, ThrustMoment):
+            return self._take_setpoint(message, arrival_s, self._valid_thrust_moment(message))
+        if isinstance(message, AttitudeTarget):
+            return self._take_setpoint(message, arrival_s, self._valid_attitude_target(message))
+        if isinstance(message, VehicleCommand):
+            return self._take_command(message, arrival_s)
+        if isinstance(message, Heartbeat) and message.is_ground_station:
+            self.last_ground_station_heartbeat_s = arrival_s
+        return True
+
+    def _valid_thrust_moment(self, sp: ThrustMoment) -> bool:
+        if not self._thrust_ok(sp.time_s, sp.thrust_n) or len(sp.moment_flu_nm) != 3:
+            return False
+        if not _finite(*sp.moment_flu_nm):
+            return False
+        return all(abs(m) <= limit for m, limit in zip(sp.moment_flu_nm, self._max_moment_nm, strict=True))
+
+    def _valid_attitude_target(self, sp: AttitudeTarget) -> bool:
+        if not self._thrust_ok(sp.time_s, sp.thrust_n):
+            return False
+        if len(sp.attitude_wxyz) != 4 or len(sp.rates_flu_radps) != 3:
+            return False
+        if not _finite(*sp.attitude_wxyz, *sp.rates_flu_radps):
+            return False
+        norm = math.sqrt(sum(float(v) ** 2 for v in sp.attitude_wxyz))
+        if abs(norm - 1.0) > self.params.quaternion_norm_tolerance:
+            return False
+        return all(abs(r) <= self.params.max_rate_radps for r in sp.rates_flu_radps)
+
+    def _thrust_ok(self, time_s, thrust_n) -> bool:
+        return _finite(time_s, thrust_n) and 0.0 <= thrust_n <= self._max_thrust_n
+
+    def _take_setpoint(self, sp, arrival_s: float, valid: bool) -> bool:
+        if not valid:
+            self.rejected_commands += 1
+            return False
+        if not self.armed or self.mode in (VehicleMode.LANDING, VehicleMode.CRASHED):
+            self.ignored_setpoints += 1
+            return True
+        self._sp_arrival_s = arrival_s
+        self._sp_thrust_n = float(sp.thrust_n)
+        if isinstance(sp, ThrustMoment):
+            self.mode = VehicleMode.MOMENTS
+            self._sp_moment = tuple(float(v) for v in sp.moment_flu_nm)
+        else:
+            self.mode = VehicleMode.ATTITUDE
+            n = math.sqrt(sum(float(v) ** 2 for v in sp.attitude_wxyz))
+            self._sp_attitude = tuple(float(v) / n for v in sp.attitude_wxyz)
+            self._sp_rates = tuple(float(v) for v in sp.rates_flu_radps)
+        return True
+
+    def _take_command(self, cmd: VehicleCommand, arrival_s: float) -> bool:
+        if not _finite(cmd.time_s) or cmd.kind not in set(CommandKind):
+            self.rejected_commands += 1
+            return False
+        if cmd.kind == CommandKind.ARM:
+            if self.mode == VehicleMode.CRASHED:
+                self.rejected_commands += 1
+                return False
+            if not self.armed:
+                self.arm(arrival_s)
+        elif cmd.kind == CommandKind.DISARM:
+            self.disarm()
+        elif cmd.kind == CommandKind.LAND and self.armed and self.mode != VehicleMode.LANDING:
+            self.mode = VehicleMode.LANDING
+            self._landing_since_s = arrival_s
+            self._yaw_pending = True  # captured from the body at the next tick
+        return True
+
+    # --- state changes ----------------------------------------------------------------------------
+    def arm(self, t_s: float) -> None:
+        """Arm: motors idle until a setpoint comes; the watchdog counts from now."""
+        self.armed = True
+        self._shutdown_latched = False
+        self._clear_setpoint(t_s)
+
+    def start_hovering(self, t_s: float) -> None:
+        """An airborne start: armed, as if a hover ThrustMoment had just arrived (the watchdog runs)."""
+        self.arm(t_s)
+        self.mode = VehicleMode.MOMENTS
+        self._sp_thrust_n = self.vehicle.weight_n
+
+    def disarm(self, watchdog: bool = False) -> None:
+        self.armed = False
+        if self.mode != VehicleMode.CRASHED:
+            self.mode = VehicleMode.IDLE
+        self._shutdown_latched = watchdog
+
+    def _clear_setpoint(self, t_s: float) -> None:
+        self.mode = VehicleMode.IDLE if self.mode != VehicleMode.CRASHED else self.mode
+        self._sp_arrival_s = t_s
+        self._sp_thrust_n = 0.0
+        self._sp_moment = (0.0, 0.0, 0.0)
+        self._sp_attitude = (1.0, 0.0, 0.0, 0.0)
+        self._sp_rates = (0.0, 0.0, 0.0)
+        self._yaw_pending = False
+
+    # --- the 500 Hz loop --------------------------------------------------------------------------
+    def tick(self, t_s: float, body: BodyState) -> tuple[float, ...]:
+        """One commander + attitude loop pass at sim time t_s; rotor speeds (rad/s) to hold until the next."""
+        self._draw_battery(body.rotor_speeds_radps)
+        if body.crash is not None:
+            self.armed = False
+            self.mode = VehicleMode.CRASHED
+            return MOTORS_OFF
+        if not self.armed:
+            return MOTORS_OFF
+        if self.mode == VehicleMode.LANDING:
+            return self._land(t_s, body)
+        age_s = t_s - self._sp_arrival_s
+        if age_s > self.params.watchdog_shutdown_timeout_s:
+            self.disarm(watchdog=True)
+            return MOTORS_OFF
+        if age_s > self.params.watchdog_level_timeout_s:
+            if self.mode != VehicleMode.LEVEL:
+                self.mode = VehicleMode.LEVEL
+                self._held_yaw_rad = yaw_of(body.attitude_wxyz)
+            level = quat_from_yaw(self._held_yaw_rad)
+            return self._follow_attitude(self._sp_thrust_n, level, (0.0, 0.0, 0.0), body)
+        if self.mode == VehicleMode.ATTITUDE:
+            return self._follow_attitude(self._sp_thrust_n, self._sp_attitude, self._sp_rates, body)
+        return self.mixer.mix(self._sp_thrust_n, self._sp_moment)  # MOMENTS, or IDLE-armed at zero
+
+    def attitude_moments(self, attitude_des: Quat, rates_des: Vec3, body: BodyState) -> Vec3:
+        """M = I (-K_R e_R - K_w (w - w_des)) + w x I w (N m, body FLU)."""
+        qe = quat_multiply(quat_conjugate(attitude_des), body.attitude_wxyz)
+        s = 2.0 * qe[0]
+        wx, wy, wz = body.rate_flu_radps
+        krx, kry, krz = self.params.k_r_per_s2
+        kwx, kwy, kwz = self.params.k_w_per_s
+        ixx, iyy, izz = self._inertia
+        return (
+            ixx * (-krx * s * qe[1] - kwx * (wx - rates_des[0])) + (izz - iyy) * wy * wz,
+            iyy * (-kry * s * qe[2] - kwy * (wy - rates_des[1])) + (ixx - izz) * wz * wx,
+            izz * (-krz * s * qe[3] - kwz * (wz - rates_des[2])) + (iyy - ixx) * wx * wy,
+        )
+
+    def _follow_attitude(self, thrust_n: float, attitude_des: Quat, rates_des: Vec3,
+                         body: BodyState) -> list[float]:
+        return self.mixer.mix(thrust_n, self.attitude_moments(attitude_des, rates_des, body))
+
+    def _land(self, t_s: float, body: BodyState) -> tuple[float, ...] | list[float]:
+        if body.on_ground or t_s - self._landing_since_s > self.params.landing_timeout_s:
+            self.disarm()
+            return MOTORS_OFF
+        q = body.attitude_wxyz
+        if self._yaw_pending:
+            self._held_yaw_rad = yaw_of(q)
+            self._yaw_pending = False
+        p = self.params
+        vz = body.velocity_enu_mps[2]
+        cos_tilt = max(1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]), 0.5)  # thrust along body z; cap the boost
+        accel = GRAVITY_MPS2 + p.landing_velocity_gain_per_s * (-p.landing_descent_speed_mps - vz)
+        thrust = min(max(self.vehicle.mass_kg * accel / cos_tilt, 0.0), self.vehicle.max_thrust_n)
+        return self._follow_attitude(thrust, quat_from_yaw(self._held_yaw_rad), (0.0, 0.0, 0.0), body)
+
+    # --- reports ----------------------------------------------------------------------------------
+    @property
+    def failsafe(self) -> bool:
+        return self.mode in (VehicleMode.LEVEL, VehicleMode.CRASHED) or self._shutdown_latched
+
+    def heartbeat(self) -> Heartbeat:
+        return Heartbeat(armed=self.armed, mode=self.mode, failsafe=self.failsafe)
+
+    @property
+    def state_of_charge(self) -> float:
+        return max(0.0, 1.0 - self.energy_used_j / self._energy_total_j)
+
+    def battery_status(self) -> BatteryStatus:
+        v = self.vehicle
+        soc = self.state_of_charge
+        return BatteryStatus(voltage_v=v.battery_empty_v + (v.battery_full_v - v.battery_empty_v) * soc,
+                             remaining_pct=int(round(100.0 * soc)), rejected_commands=self.rejected_commands)
+
+    def _draw_battery(self, rotor_speeds) -> None:
+        rotor_power_w = self._k_d * sum(w * w * w for w in rotor_speeds)
+        power_w = rotor_power_w / self.params.motor_efficiency + self.params.avionics_power_w
+        self.energy_used_j += power_w * self.tick_period_s

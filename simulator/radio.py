@@ -1,0 +1,629 @@
+"""The simulated radio: one impaired, one-way channel carrying opaque frames in simulation time.
+
+Takes in: a `RadioProfile` (simulator/params/radio/*.toml, or any TOML file), a seeded
+numpy.random.Generator, and frames (bytes, e.g. MAVLink 2 frames of 12..280 bytes) offered with
+`push(frame, t_s)` at non-decreasing simulation times t_s (s).
+Gives out: `pop_due(t_s)`: the frames whose delivery time is <= t_s, in delivery order (ties keep
+offer order), each possibly bit-corrupted or duplicated; `next_delivery_s()` and `min_latency_s`
+for the emulator's lookahead; `stats`, a per-frame `ledger`, and `radio_status()` (RADIO_STATUS fields).
+
+Every random decision is drawn inside `push`, in offer order, from the generator given: the same
+seed and the same pushes give byte-identical deliveries, whatever the pattern of `pop_due` calls.
+
+What happens to frame i offered at t_i (s), in this order:
+ 1. Queue. The channel carries one frame at a time, first come first served. Frame i starts when
+    the channel is free, s_i = max(t_i, e_{i-1}), and occupies it for a service time
+        S_i = 8 L_i / B  (+ its Crazyradio air time, model "crazyradio"),
+    L_i in bytes, B = `queue.bandwidth_bps` (no serialisation term when B = 0), e_i = s_i + S_i.
+    A frame that would have to wait while `queue.capacity_frames` frames already wait is dropped
+    (cause "queue") and takes no channel time.
+ 2. Loss on the air (the frame still used the channel):
+    - model "crazyradio": the frame travels in n = ceil(L / d) nRF24 packets (d data bytes each),
+      every attempt of a packet fails (packet or ACK lost) with probability p, and a packet is sent
+      at most ARC + 1 times; the frame is lost (cause "retries") when any packet fails them all:
+          P(lost) = 1 - (1 - p^(ARC+1))^n.
+      One attempt lasts T_set + T_oa(packet) + T_set + T_oa(ACK) when it succeeds and
+      T_set + T_oa(packet) + ARD when it fails, with the nRF24L01+ time on air
+          T_oa = (8 (preamble + address + payload + CRC) + packet-control bits) / air rate.
+    - bursty loss (cause "burst"): a Gilbert-Elliott chain stepped once per frame on the air; a frame
+      is lost with probability loss_good or loss_bad by the state it meets, then the state moves
+      (good -> bad with p_good_to_bad, bad -> good with p_bad_to_good). The first state is drawn
+      from the stationary law, pi_bad = p_gb / (p_gb + p_bg), so the mean loss is
+      pi_bad loss_bad + (1 - pi_bad) loss_good from the first frame; bad sojourns last 1 / p_bg
+      frames on average.
+    - i.i.d. loss (cause "iid") with `loss.probability`.
+ 3. Delay. Delivery at d_i = e_i + base + J_i (+ `reorder_delay_s` with `reorder_probability`),
+    J_i the jitter: uniform on [-j, j] or normal(0, j) cut at +-clip j, and in both cases conditioned
+    on base + J_i >= 0 (no frame arrives before it was sent). With `preserve_order`, d_i is raised
+    to the previous delivery time so frames never overtake each other.
+ 4. Duplication: with `duplication.probability` a second copy is delivered right after the first.
+ 5. Corruption, per delivered copy: with `corruption.frame_probability` exactly `bits_per_frame`
+    distinct bits flip, plus Binomial(8 L, `bit_error_rate`) more; the receiver's CRC must reject it.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from array import array
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
+from scipy.special import ndtr, ndtri
+
+from link.config import Params, resolve
+
+MODELS = ("simple", "crazyradio")
+JITTER_LAWS = ("uniform", "normal")
+UINT8_UNKNOWN = 255  # MAVLink RADIO_STATUS: UINT8_MAX means "invalid/unknown"
+RSSI_MAX = 254  # MAVLink RADIO_STATUS rssi range is 0..254
+UINT16_WRAP = 1 << 16  # rx_errors and fixed are uint16 counters that wrap
+_UNIFORM_BLOCK = 4096  # uniforms drawn per call to the generator (speed only; the stream is the same)
+
+
+class DropCause(StrEnum):
+    IID = "iid"
+    BURST = "burst"
+    QUEUE = "queue"
+    RETRIES = "retries"
+
+
+# ------------------------------------------------------------------------------------------------
+# Profile
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GilbertElliott:
+    """Two-state Markov loss, stepped once per frame on the air."""
+
+    p_good_to_bad: float
+    p_bad_to_good: float
+    loss_good: float
+    loss_bad: float
+
+    @property
+    def enabled(self) -> bool:
+        return self.loss_good > 0.0 or self.loss_bad > 0.0
+
+    @property
+    def stationary_bad(self) -> float:
+        """pi_bad = p_gb / (p_gb + p_bg); a chain that never moves stays in its first (good) state."""
+        total = self.p_good_to_bad + self.p_bad_to_good
+        return self.p_good_to_bad / total if total > 0.0 else 0.0
+
+    @property
+    def mean_loss(self) -> float:
+        pi_bad = self.stationary_bad
+        return pi_bad * self.loss_bad + (1.0 - pi_bad) * self.loss_good
+
+
+@dataclass(frozen=True)
+class CrazyradioLink:
+    """Crazyradio PA / nRF24 Enhanced ShockBurst timing and retries (see crazyradio.toml for sources)."""
+
+    air_rate_bps: float
+    data_bytes_per_packet: int  # frame bytes carried per radio packet (CRTP data)
+    header_bytes_per_packet: int  # protocol header in each radio payload (CRTP header)
+    preamble_bytes: int
+    address_bytes: int
+    packet_control_bits: int
+    crc_bytes: int
+    ack_payload_bytes: int
+    settling_s: float  # PLL settling before every transmission and every ACK (nRF24 Tstby2a)
+    auto_retransmit_delay_s: float  # ARD: end of a failed transmission to the next attempt
+    auto_retransmit_count: int  # ARC: retransmissions after the first attempt
+    packet_loss_probability: float  # per attempt: the packet or its ACK is lost
+
+    def time_on_air_s(self, payload_bytes: int) -> float:
+        """nRF24L01+ T_oa = (8 (preamble + address + payload + CRC) + packet-control bits) / rate."""
+        overhead = self.preamble_bytes + self.address_bytes + self.crc_bytes
+        return (8 * (overhead + payload_bytes) + self.packet_control_bits) / self.air_rate_bps
+
+    def attempt_ok_s(self, data_bytes: int) -> float:
+        """A successful attempt: settle, send, turn around (settle), receive the ACK."""
+        packet = self.time_on_air_s(self.header_bytes_per_packet + data_bytes)
+        return 2.0 * self.settling_s + packet + self.time_on_air_s(self.ack_payload_bytes)
+
+    def attempt_failed_s(self, data_bytes: int) -> float:
+        """A failed attempt: settle, send, wait ARD for an ACK that never comes."""
+        packet = self.time_on_air_s(self.header_bytes_per_packet + data_bytes)
+        return self.settling_s + packet + self.auto_retransmit_delay_s
+
+    def packet_data_sizes(self, frame_bytes: int) -> list[int]:
+        """Data bytes of each packet of a frame: full packets, then the remainder (>= 1 packet)."""
+        d = self.data_bytes_per_packet
+        count = max(1, -(-frame_bytes // d))
+        return [d] * (count - 1) + [frame_bytes - d * (count - 1)]
+
+
+@dataclass(frozen=True)
+class RadioProfile:
+    name: str
+    source: str
+    model: str  # "simple" or "crazyradio"
+    base_latency_s: float
+    jitter: str  # "uniform" (half-width jitter_s) or "normal" (standard deviation jitter_s)
+    jitter_s: float
+    normal_clip_sigmas: float  # normal jitter is cut at +-clip sigma (a bound keeps min_latency_s useful)
+    preserve_order: bool
+    reorder_probability: float
+    reorder_delay_s: float
+    loss_probability: float
+    burst: GilbertElliott
+    duplicate_probability: float
+    corrupt_frame_probability: float
+    corrupt_bits_per_frame: int
+    bit_error_rate: float
+    bandwidth_bps: float  # 0 = unlimited
+    queue_capacity_frames: int
+    status_window_frames: int
+    crazyradio: CrazyradioLink | None = None
+    path: str = ""
+
+    @property
+    def jitter_bounds_s(self) -> tuple[float, float]:
+        """(lowest, highest) jitter value J; the lowest keeps base + J >= 0."""
+        if self.jitter_s == 0.0:
+            return 0.0, 0.0
+        half = self.jitter_s if self.jitter == "uniform" else self.normal_clip_sigmas * self.jitter_s
+        return max(-self.base_latency_s, -half), half
+
+    @property
+    def min_latency_s(self) -> float:
+        """A true lower bound of (delivery time - offer time) for any frame."""
+        floor = self.base_latency_s + self.jitter_bounds_s[0]
+        if self.crazyradio is not None:
+            floor += self.crazyradio.attempt_ok_s(0)
+        return max(0.0, floor)
+
+
+def _boolean(p: Params, key: str) -> bool:
+    # Params has no boolean accessor (link/config.py); same message shape as its own errors.
+    if not p.has(key):
+        raise p.error(key, "missing")
+    value = p.data[key]
+    if not isinstance(value, bool):
+        raise p.error(key, f"expected true or false, got {value!r}")
+    return value
+
+
+def _only_known_fields(p: Params, allowed: set[str]) -> None:
+    """A misspelt field would otherwise be silently ignored."""
+    for key in p.data:
+        if key not in allowed:
+            raise p.error(key, f"unknown field (expected one of {', '.join(sorted(allowed))})")
+
+
+def _probability(p: Params, key: str) -> float:
+    return p.number(key, minimum=0.0, maximum=1.0)
+
+
+_TOP_FIELDS = {"schema_version", "name", "source", "model", "latency", "loss", "burst", "duplication",
+               "corruption", "queue", "status", "crazyradio"}
+_LATENCY_FIELDS = {"base_s", "jitter", "jitter_s", "normal_clip_sigmas", "preserve_order",
+                   "reorder_probability", "reorder_delay_s"}
+_BURST_FIELDS = {"p_good_to_bad", "p_bad_to_good", "loss_good", "loss_bad"}
+_CORRUPTION_FIELDS = {"frame_probability", "bits_per_frame", "bit_error_rate"}
+_QUEUE_FIELDS = {"bandwidth_bps", "capacity_frames"}
+_CRAZYRADIO_FIELDS = {"air_rate_bps", "data_bytes_per_packet", "header_bytes_per_packet", "preamble_bytes",
+                      "address_bytes", "packet_control_bits", "crc_bytes", "ack_payload_bytes", "settling_s",
+                      "auto_retransmit_delay_s", "auto_retransmit_count", "packet_loss_probability"}
+
+
+def _table(p: Params, key: str, allowed: set[str]) -> Params:
+    table = p.table(key)
+    _only_known_fields(table, allowed)
+    return table
+
+
+def _load_crazyradio(t: Params) -> CrazyradioLink:
+    return CrazyradioLink(
+        air_rate_bps=t.number("air_rate_bps", minimum=1.0),
+        data_bytes_per_packet=t.integer("data_bytes_per_packet", minimum=1),
+        header_bytes_per_packet=t.integer("header_bytes_per_packet", minimum=0),
+        preamble_bytes=t.integer("preamble_bytes", minimum=0),
+        address_bytes=t.integer("address_bytes", minimum=0),
+        packet_control_bits=t.integer("packet_control_bits", minimum=0),
+        crc_bytes=t.integer("crc_bytes", minimum=0),
+        ack_payload_bytes=t.integer("ack_payload_bytes", minimum=0),
+        settling_s=t.number("settling_s", minimum=0.0),
+        auto_retransmit_delay_s=t.number("auto_retransmit_delay_s", minimum=0.0),
+        auto_retransmit_count=t.integer("auto_retransmit_count", minimum=0),
+        packet_loss_probability=_probability(t, "packet_loss_probability"),
+    )
+
+
+def load_radio_profile(name_or_path: str | Path = "crazyradio") -> RadioProfile:
+    """A built-in profile (ideal, crazyradio, lab, harsh) or a TOML file.
+
+    Raises link.errors.ConfigError naming the file and the field when a field is missing, misspelt
+    or out of range.
+    """
+    path = resolve(name_or_path, "simulator", "params/radio", "radio profile")
+    p = Params.load(path)
+    _only_known_fields(p, _TOP_FIELDS)
+    model = p.string("model", choices=MODELS)
+    latency = _table(p, "latency", _LATENCY_FIELDS)
+    loss = _table(p, "loss", {"probability"})
+    burst = _table(p, "burst", _BURST_FIELDS)
+    duplication = _table(p, "duplication", {"probability"})
+    corruption = _table(p, "corruption", _CORRUPTION_FIELDS)
+    queue = _table(p, "queue", _QUEUE_FIELDS)
+    status = _table(p, "status", {"window_frames"})
+
+    jitter = latency.string("jitter", choices=JITTER_LAWS)
+    preserve_order = _boolean(latency, "preserve_order")
+    reorder_probability = _probability(latency, "reorder_probability")
+    if preserve_order and reorder_probability > 0.0:
+        raise latency.error("reorder_probability", "must be 0 when preserve_order = true")
+    crazyradio = None
+    if model == "crazyradio":
+        crazyradio = _load_crazyradio(_table(p, "crazyradio", _CRAZYRADIO_FIELDS))
+    elif p.has("crazyradio"):
+        raise p.error("crazyradio", "given, but model is 'simple' (set model = \"crazyradio\" to use it)")
+
+    return RadioProfile(
+        name=p.string("name"),
+        source=p.string("source"),
+        model=model,
+        base_latency_s=latency.number("base_s", minimum=0.0),
+        jitter=jitter,
+        jitter_s=latency.number("jitter_s", minimum=0.0),
+        normal_clip_sigmas=latency.number("normal_clip_sigmas", minimum=0.1) if jitter == "normal" else 0.0,
+        preserve_order=preserve_order,
+        reorder_probability=reorder_probability,
+        reorder_delay_s=latency.number("reorder_delay_s", minimum=0.0),
+        loss_probability=_probability(loss, "probability"),
+        burst=GilbertElliott(
+            p_good_to_bad=_probability(burst, "p_good_to_bad"),
+            p_bad_to_good=_probability(burst, "p_bad_to_good"),
+            loss_good=_probability(burst, "loss_good"),
+            loss_bad=_probability(burst, "loss_bad"),
+        ),
+        duplicate_probability=_probability(duplication, "probability"),
+        corrupt_frame_probability=_probability(corruption, "frame_probability"),
+        corrupt_bits_per_frame=corruption.integer("bits_per_frame", minimum=1),
+        bit_error_rate=_probability(corruption, "bit_error_rate"),
+        bandwidth_bps=queue.number("bandwidth_bps", minimum=0.0),
+        queue_capacity_frames=queue.integer("capacity_frames", minimum=0),
+        status_window_frames=status.integer("window_frames", minimum=1),
+        crazyradio=crazyradio,
+        path=str(path),
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# Channel
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class FrameFate:
+    """What the channel decided for one offered frame (decided in full at push time)."""
+
+    offered_s: float
+    size_bytes: int
+    drop_cause: DropCause | None = None
+    delivery_s: tuple[float, ...] = ()  # one entry per delivered copy (two when duplicated)
+    flipped_bits: tuple[int, ...] = ()  # bits flipped in each copy (0 = intact)
+    retransmissions: int = 0  # Crazyradio packet retransmissions spent on this frame
+
+    @property
+    def delivered(self) -> bool:
+        return bool(self.delivery_s)
+
+    @property
+    def duplicated(self) -> bool:
+        return len(self.delivery_s) > 1
+
+    @property
+    def corrupted(self) -> bool:
+        return any(self.flipped_bits)
+
+
+@dataclass
+class RadioStats:
+    """Counters of one channel. Decisions (offered, dropped, duplicated) count at push; what the far
+    end saw (delivered, corrupted, reordered, bytes_delivered, latency) counts at pop."""
+
+    offered: int = 0
+    delivered: int = 0  # delivered copies, duplicates included
+    dropped: Counter = field(default_factory=Counter)  # DropCause -> frames
+    duplicated: int = 0
+    corrupted: int = 0  # delivered copies with at least one flipped bit
+    reordered: int = 0  # delivered copies that arrive after a frame offered later
+    repaired: int = 0  # delivered copies whose frame needed Crazyradio retransmissions
+    bytes_offered: int = 0
+    bytes_delivered: int = 0
+    latency_s: array = field(default_factory=lambda: array("d"))  # delay of each delivered copy, s
+
+    @property
+    def dropped_total(self) -> int:
+        return sum(self.dropped.values())
+
+    def latency_percentile_s(self, q: float) -> float:
+        return float(np.percentile(self.latency_s, q)) if self.latency_s else math.nan
+
+    @property
+    def latency_p50_s(self) -> float:
+        return self.latency_percentile_s(50.0)
+
+    @property
+    def latency_p99_s(self) -> float:
+        return self.latency_percentile_s(99.0)
+
+    @property
+    def latency_mean_s(self) -> float:
+        return float(np.mean(self.latency_s)) if self.latency_s else math.nan
+
+
+class _Uniforms:
+    """U(0,1) draws from the generator, fetched in blocks (one numpy call per block, not per draw)."""
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+        self.block: list[float] = []
+        self.index = 0
+
+    def next(self) -> float:
+        if self.index == len(self.block):
+            self.block = self.rng.random(_UNIFORM_BLOCK).tolist()
+            self.index = 0
+        value = self.block[self.index]
+        self.index += 1
+        return value
+
+
+class RadioChannel:
+    """One direction of one vehicle's radio. See the module docstring for the model."""
+
+    def __init__(self, profile: RadioProfile, rng: np.random.Generator, name: str = "",
+                 keep_ledger: bool = True):
+        self.profile = profile
+        self.name = name
+        self.rng = rng
+        self.stats = RadioStats()
+        self.ledger: list[FrameFate] = []
+        self.keep_ledger = keep_ledger
+        self._u = _Uniforms(rng)
+        # (delivery s, copy seq, offer index, bytes, corrupted, offered s, repaired); seq is unique,
+        # so tuples never compare beyond it.
+        self._heap: list[tuple[float, int, int, bytes, bool, float, bool]] = []
+        self._copy_seq = 0  # tie-breaker: copies scheduled earlier leave first
+        self._last_push_s = -math.inf
+        self._channel_free_s = -math.inf
+        self._waiting_starts: deque[float] = deque()  # start times of admitted frames not yet on air
+        self._last_delivery_s = -math.inf
+        self._latest_index_delivered = -1
+        self._air_outcomes: deque[bool] = deque(maxlen=profile.status_window_frames)
+        self._lo_jitter, self._hi_jitter = profile.jitter_bounds_s
+        self._min_latency_s = profile.min_latency_s  # cached: read once per frame
+        if profile.jitter == "normal" and profile.jitter_s > 0.0:
+            self._cdf_lo = float(ndtr(self._lo_jitter / profile.jitter_s))
+            self._cdf_hi = float(ndtr(self._hi_jitter / profile.jitter_s))
+        burst = profile.burst
+        self._burst_bad = burst.enabled and self._u.next() < burst.stationary_bad
+        cr = profile.crazyradio
+        if cr is not None:
+            sizes = range(cr.data_bytes_per_packet + 1)
+            self._ok_s = [cr.attempt_ok_s(d) for d in sizes]
+            self._failed_s = [cr.attempt_failed_s(d) for d in sizes]
+            p = cr.packet_loss_probability
+            self._log_p = math.log(p) if 0.0 < p < 1.0 else None
+
+    # --- public API ------------------------------------------------------------------------------
+    @property
+    def min_latency_s(self) -> float:
+        """The smallest possible delay of any frame on this channel (s): a true lower bound."""
+        return self._min_latency_s
+
+    @property
+    def pending(self) -> int:
+        return len(self._heap)
+
+    def next_delivery_s(self) -> float | None:
+        return self._heap[0][0] if self._heap else None
+
+    def push(self, frame: bytes, t_s: float) -> None:
+        """Offer a frame at simulation time t_s (s); its whole fate is drawn now."""
+        if t_s < self._last_push_s:
+            raise ValueError(f"radio {self.name!r}: frame pushed at t={t_s} s, before the previous "
+                             f"push at t={self._last_push_s} s (pushes must not go back in time)")
+        self._last_push_s = t_s
+        frame = bytes(frame)
+        index = self.stats.offered
+        self.stats.offered += 1
+        self.stats.bytes_offered += len(frame)
+        fate = self._decide(frame, index, t_s)
+        if self.keep_ledger:
+            self.ledger.append(fate)
+
+    def pop_due(self, t_s: float) -> list[bytes]:
+        """Every frame delivered at or before t_s, in delivery order (ties: offer order)."""
+        out = []
+        heap, stats = self._heap, self.stats
+        while heap and heap[0][0] <= t_s:
+            delivery_s, _, index, data, corrupted, offered_s, repaired = heapq.heappop(heap)
+            stats.delivered += 1
+            stats.bytes_delivered += len(data)
+            stats.latency_s.append(delivery_s - offered_s)
+            stats.corrupted += corrupted
+            stats.repaired += repaired
+            if index < self._latest_index_delivered:
+                stats.reordered += 1
+            else:
+                self._latest_index_delivered = index
+            out.append(data)
+        return out
+
+    def radio_status(self, t_s: float | None = None, reverse: RadioChannel | None = None) -> dict[str, int]:
+        """RADIO_STATUS fields (link.messages.RadioStatus keyword arguments) for the radio that
+        transmits on this channel ("local"); `reverse` is the channel it receives on.
+
+        - remote_rssi: the far end's reception = round(254 * r), r the share of the last
+          `status.window_frames` frames put on the air here that were not lost (queue drops excluded);
+          255 (unknown) before any frame.
+        - rssi, rx_errors, fixed: the local reception, taken from `reverse`: rssi as above,
+          rx_errors = corrupted copies delivered, fixed = delivered copies that needed Crazyradio
+          retransmissions (uint16 counters that wrap). Without `reverse` they come from this channel
+          (path loss is reciprocal, so the link is taken as symmetric).
+        - tx_buffer_pct: MAVLink txbuf, the FREE share of this channel's queue at t_s (default: the
+          last push time): 100 * (1 - waiting / capacity); 100 with an empty or zero-capacity queue.
+        - noise, remote_noise: 255 (unknown): no noise floor is modelled.
+        """
+        t = self._last_push_s if t_s is None else t_s
+        local = reverse if reverse is not None else self
+        return {
+            "rssi": local._rssi(),
+            "remote_rssi": self._rssi(),
+            "tx_buffer_pct": self._tx_buffer_free_pct(t),
+            "noise": UINT8_UNKNOWN,
+            "remote_noise": UINT8_UNKNOWN,
+            "rx_errors": local.stats.corrupted % UINT16_WRAP,
+            "fixed": local.stats.repaired % UINT16_WRAP,
+        }
+
+    # --- the model -------------------------------------------------------------------------------
+    def _decide(self, frame: bytes, index: int, t_s: float) -> FrameFate:
+        size = len(frame)
+        start_s = max(t_s, self._channel_free_s)
+        if not self._admit(t_s, start_s):
+            self.stats.dropped[DropCause.QUEUE] += 1
+            return FrameFate(t_s, size, DropCause.QUEUE)
+        service_s, retransmissions, radio_lost = self._service(size)
+        self._channel_free_s = start_s + service_s
+        end_s = self._channel_free_s
+        cause = self._air_loss(radio_lost)
+        self._air_outcomes.append(cause is None)
+        if cause is not None:
+            self.stats.dropped[cause] += 1
+            return FrameFate(t_s, size, cause, retransmissions=retransmissions)
+        delivery_s = self._delivery_time(t_s, end_s)
+        copies = 1
+        if self.profile.duplicate_probability > 0.0 and self._u.next() < self.profile.duplicate_probability:
+            copies = 2
+            self.stats.duplicated += 1
+        flips = []
+        for _ in range(copies):
+            data, flipped = self._corrupt(frame)
+            flips.append(flipped)
+            self._schedule(delivery_s, index, data, flipped > 0, t_s, retransmissions > 0)
+        return FrameFate(t_s, size, None, (delivery_s,) * copies, tuple(flips), retransmissions)
+
+    def _admit(self, t_s: float, start_s: float) -> bool:
+        """FIFO with `capacity_frames` places for frames waiting for the channel."""
+        waiting = self._waiting_starts
+        while waiting and waiting[0] <= t_s:
+            waiting.popleft()
+        if start_s <= t_s:
+            return True
+        if len(waiting) >= self.profile.queue_capacity_frames:
+            return False
+        waiting.append(start_s)
+        return True
+
+    def _service(self, size: int) -> tuple[float, int, bool]:
+        """(channel time s, retransmissions, lost by exhausted retries) of one frame."""
+        service_s = 8.0 * size / self.profile.bandwidth_bps if self.profile.bandwidth_bps > 0.0 else 0.0
+        if self.profile.crazyradio is None:
+            return service_s, 0, False
+        air_s, retransmissions, lost = self._crazyradio_air(size)
+        return service_s + air_s, retransmissions, lost
+
+    def _crazyradio_air(self, size: int) -> tuple[float, int, bool]:
+        """Send the frame's packets one after the other; failed attempts per packet are geometric,
+        P(K >= k) = p^k, drawn by inversion K = floor(ln U / ln p)."""
+        cr = self.profile.crazyradio
+        p = cr.packet_loss_probability
+        arc = cr.auto_retransmit_count
+        air_s, retransmissions = 0.0, 0
+        for data in cr.packet_data_sizes(size):
+            if p == 0.0:
+                failures = 0
+            elif self._log_p is None:  # p == 1: every attempt fails
+                failures = arc + 1
+            else:
+                failures = int(math.log(1.0 - self._u.next()) / self._log_p)
+            if failures > arc:
+                return air_s + (arc + 1) * self._failed_s[data], retransmissions + arc, True
+            air_s += failures * self._failed_s[data] + self._ok_s[data]
+            retransmissions += failures
+        return air_s, retransmissions, False
+
+    def _air_loss(self, radio_lost: bool) -> DropCause | None:
+        """Step the Gilbert-Elliott chain and draw i.i.d. loss for every frame on the air, so each
+        impairment keeps its own statistics whatever the others do."""
+        cause = DropCause.RETRIES if radio_lost else None
+        burst = self.profile.burst
+        if burst.enabled:
+            loss = burst.loss_bad if self._burst_bad else burst.loss_good
+            if self._u.next() < loss and cause is None:
+                cause = DropCause.BURST
+            move = burst.p_bad_to_good if self._burst_bad else burst.p_good_to_bad
+            if self._u.next() < move:
+                self._burst_bad = not self._burst_bad
+        p = self.profile.loss_probability
+        if p > 0.0 and self._u.next() < p and cause is None:
+            cause = DropCause.IID
+        return cause
+
+    def _delivery_time(self, t_s: float, end_s: float) -> float:
+        profile = self.profile
+        delay = profile.base_latency_s + self._jitter()
+        if profile.reorder_probability > 0.0 and self._u.next() < profile.reorder_probability:
+            delay += profile.reorder_delay_s
+        # max(): floating-point rounding must never beat the advertised lower bound.
+        delivery_s = max(end_s + delay, t_s + self._min_latency_s)
+        if profile.preserve_order:
+            delivery_s = max(delivery_s, self._last_delivery_s)
+        self._last_delivery_s = max(self._last_delivery_s, delivery_s)
+        return delivery_s
+
+    def _jitter(self) -> float:
+        if self.profile.jitter_s == 0.0:
+            return 0.0
+        u = self._u.next()
+        if self.profile.jitter == "uniform":
+            return self._lo_jitter + u * (self._hi_jitter - self._lo_jitter)
+        # Truncated normal by inversion: exact, one draw, no rejection loop.
+        q = self._cdf_lo + u * (self._cdf_hi - self._cdf_lo)
+        return min(max(float(ndtri(q)) * self.profile.jitter_s, self._lo_jitter), self._hi_jitter)
+
+    def _corrupt(self, frame: bytes) -> tuple[bytes, int]:
+        """(copy, number of distinct bits flipped)."""
+        profile = self.profile
+        flips = 0
+        if profile.corrupt_frame_probability > 0.0 and self._u.next() < profile.corrupt_frame_probability:
+            flips = profile.corrupt_bits_per_frame
+        if profile.bit_error_rate > 0.0:
+            flips += int(self.rng.binomial(8 * len(frame), profile.bit_error_rate))
+        flips = min(flips, 8 * len(frame))
+        if flips == 0:
+            return frame, 0
+        data = bytearray(frame)
+        for bit in self.rng.choice(8 * len(frame), size=flips, replace=False).tolist():
+            data[bit >> 3] ^= 1 << (bit & 7)
+        return bytes(data), flips
+
+    def _schedule(self, delivery_s: float, index: int, data: bytes, corrupted: bool, offered_s: float,
+                  repaired: bool) -> None:
+        seq = self._copy_seq
+        self._copy_seq += 1
+        heapq.heappush(self._heap, (delivery_s, seq, index, data, corrupted, offered_s, repaired))
+
+    def _rssi(self) -> int:
+        outcomes = self._air_outcomes
+        if not outcomes:
+            return UINT8_UNKNOWN
+        return round(RSSI_MAX * sum(outcomes) / len(outcomes))
+
+    def _tx_buffer_free_pct(self, t_s: float) -> int:
+        capacity = self.profile.queue_capacity_frames
+        if capacity == 0:
+            return 100
+        waiting = sum(1 for start in self._waiting_starts if start > t_s)
+        return round(100.0 * (1.0 - waiting / capacity))

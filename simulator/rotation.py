@@ -1,0 +1,108 @@
+"""Small quaternion helpers on plain floats for the emulator's 1 kHz inner loops.
+
+Takes in: quaternions (w, x, y, z) rotating body FLU vectors into world ENU, 3-vectors, angles in rad.
+Gives out: products, rotated vectors, exponential-map and yaw conversions, as tuples of floats.
+
+Why not scipy.spatial.transform.Rotation: it costs tens of microseconds per call on one rotation,
+and the emulator's budget is < 50 us for a whole physics step; the tests check these helpers against
+scipy. (simulator/ may not import groundstation.rotation, hence this separate copy.)
+"""
+
+from __future__ import annotations
+
+import math
+
+Quat = tuple[float, float, float, float]
+Vec3 = tuple[float, float, float]
+
+IDENTITY: Quat = (1.0, 0.0, 0.0, 0.0)
+
+
+def quat_multiply(a: Quat, b: Quat) -> Quat:
+    """Hamilton product a (x) b: rotate by b first, then by a."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def quat_conjugate(q: Quat) -> Quat:
+    """The inverse rotation of a unit quaternion."""
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def quat_norm(q: Quat) -> float:
+    return math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+
+
+def quat_normalize(q: Quat) -> Quat:
+    n = quat_norm(q)
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def quat_rotate(q: Quat, v: Vec3) -> Vec3:
+    """R(q) v: a body FLU vector expressed in world ENU (q unit)."""
+    w, x, y, z = q
+    vx, vy, vz = v
+    # v + 2 w (u x v) + 2 u x (u x v), u = (x, y, z): the expanded form of q v q*
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (
+        vx + w * tx + y * tz - z * ty,
+        vy + w * ty + z * tx - x * tz,
+        vz + w * tz + x * ty - y * tx,
+    )
+
+
+def quat_rotate_inverse(q: Quat, v: Vec3) -> Vec3:
+    """R(q)^T v: a world ENU vector expressed in body FLU (q unit)."""
+    return quat_rotate(quat_conjugate(q), v)
+
+
+def quat_from_rotvec(rx: float, ry: float, rz: float) -> Quat:
+    """exp of a rotation vector (axis * angle, rad)."""
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if angle < 1e-12:
+        return (1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz)  # first order; normalised to 1 within 1e-24
+    s = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), rx * s, ry * s, rz * s)
+
+
+def quat_from_yaw(yaw_rad: float) -> Quat:
+    """Level attitude heading yaw_rad (rotation about world +z, counter-clockwise from +x east)."""
+    return (math.cos(0.5 * yaw_rad), 0.0, 0.0, math.sin(0.5 * yaw_rad))
+
+
+def yaw_of(q: Quat) -> float:
+    """Heading (rad) of the body x axis projected on the horizontal plane (ZYX Euler yaw)."""
+    w, x, y, z = q
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def level_with_yaw(q: Quat) -> Quat:
+    """The level attitude (roll = pitch = 0) with the same heading as q."""
+    return quat_from_yaw(yaw_of(q))
+
+
+def quat_from_euler_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Quat:
+    """q = Rz(yaw) Ry(pitch) Rx(roll), the aerospace ZYX convention (body FLU, world ENU)."""
+    cr, sr = math.cos(0.5 * roll_rad), math.sin(0.5 * roll_rad)
+    cp, sp = math.cos(0.5 * pitch_rad), math.sin(0.5 * pitch_rad)
+    cy, sy = math.cos(0.5 * yaw_rad), math.sin(0.5 * yaw_rad)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def rotation_angle_between(a: Quat, b: Quat) -> float:
+    """Angle (rad, 0..pi) of the rotation taking attitude a to attitude b."""
+    dw = abs(a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]) / (quat_norm(a) * quat_norm(b))
+    return 2.0 * math.acos(min(1.0, dw))

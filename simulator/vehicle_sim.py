@@ -1,0 +1,261 @@
+"""One emulated Crazyflie in-process: physics, onboard firmware and sensors on one simulation clock.
+
+Takes in: uplink messages (ThrustMoment, AttitudeTarget, VehicleCommand, TimeSync requests, ground-station
+Heartbeats) delivered by the radio at a sim time (`handle_uplink`), and `step()` calls (one physics
+step of 1 / physics_rate_hz each).
+Gives out: `pop_outputs()` -> Output(release_time_s, channel, message), in release order, holding each
+until the vehicle's clock reaches its release time:
+  "downlink": ImuSample (imu rate), Heartbeat and BatteryStatus (telemetry rates), TimeSync replies;
+  "mocap":    MocapPose (mocap rate; time_s = sample time, released latency_s later; dropped frames
+              are simply absent);
+  "truth":    TruthState (telemetry.truth_rate_hz; simulation only);
+plus `crash` (None or a dynamics.Crash) and `truth` (the current TruthState). No transport here.
+
+Within a step at time t, in order: uplinks due by t are applied, the firmware ticks if due (500 Hz)
+and sets the rotor command, sensors and telemetry due by t sample the state at t (stamped t), then the
+physics integrates to t + dt. Periodic tasks run on an integer schedule k / rate (no drift), sampled at
+the first physics step at or after each due time. Everything random comes from the Generator passed in
+(split into independent IMU and mocap streams), so the same seed gives identical outputs.
+
+airborne=True starts in flight: armed, rotors at hover speed, as if a hover ThrustMoment arrived at
+t = 0 - so the commander watchdog (level at 0.5 s, motors off at 2 s) applies until setpoints come.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+from collections import deque
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from link.errors import UserError, WorldError
+from link.messages import Message, TimeSync, TruthState
+from link.vehicle import MocapRoom, Vehicle
+from link.world import World
+from simulator.dynamics import Crash, QuadrotorDynamics
+from simulator.firmware import Firmware, FirmwareParams, load_firmware_params
+from simulator.sensors import ImuModel, MocapModel
+
+_EPS_S = 1e-9  # schedule comparisons tolerate float rounding of k / rate (well under a nanosecond tick)
+NS_PER_S = 1_000_000_000
+
+
+class Output(NamedTuple):
+    release_time_s: float
+    channel: str  # "downlink", "mocap" or "truth"
+    message: Message
+
+
+class _Schedule:
+    """Due times k / rate_hz, k = 0, 1, ...; skips ahead when the caller steps slower than the rate."""
+
+    __slots__ = ("period_s", "k", "next_s")
+
+    def __init__(self, rate_hz: float):
+        self.period_s = 1.0 / rate_hz
+        self.k = 0
+        self.next_s = 0.0
+
+    def advance(self, t_s: float) -> None:
+        self.k = max(self.k + 1, math.floor((t_s + _EPS_S) / self.period_s) + 1)
+        self.next_s = self.k * self.period_s
+
+
+class SimVehicle:
+    def __init__(self, vehicle: Vehicle, rng: np.random.Generator, *, world: World | None = None,
+                 mocap_room: MocapRoom | None = None, vehicle_id: int = 1, physics_rate_hz: float = 1000.0,
+                 initial_position_enu_m=(0.0, 0.0, 0.0),
+                 firmware_params: FirmwareParams | str | Path | None = None,
+                 airborne: bool = False, profile: bool = False):
+        if not (isinstance(physics_rate_hz, (int, float)) and math.isfinite(physics_rate_hz)
+                and physics_rate_hz > 0.0):
+            raise UserError(f"physics rate must be a positive number of Hz, got {physics_rate_hz!r}")
+        params = (firmware_params if isinstance(firmware_params, FirmwareParams)
+                  else load_firmware_params(firmware_params or "firmware"))
+        self.vehicle = vehicle
+        self.vehicle_id = vehicle_id
+        self.params = params
+        self.world = world
+        start = _checked_start(initial_position_enu_m, world, params.contact.radius_for(vehicle))
+        self.dynamics = QuadrotorDynamics(vehicle, params.contact, world=world, dt_s=1.0 / physics_rate_hz,
+                                          position_enu_m=start)
+        self.firmware = Firmware(vehicle, params)
+        imu_rng, mocap_rng = rng.spawn(2)
+        self.imu = ImuModel(vehicle.imu, imu_rng)
+        self.mocap = MocapModel(mocap_room, mocap_rng, vehicle_id) if mocap_room is not None else None
+        self._fw = _Schedule(params.commander_rate_hz)
+        self._imu = _Schedule(vehicle.imu.rate_hz)
+        self._mocap = _Schedule(mocap_room.rate_hz) if mocap_room is not None else None
+        self._truth = _Schedule(params.truth_rate_hz)
+        self._heartbeat = _Schedule(params.heartbeat_rate_hz)
+        self._battery = _Schedule(params.battery_rate_hz)
+        self._uplinks: list[tuple[float, int, Message]] = []
+        self._uplink_seq = 0
+        self._out: list[Output] = []
+        self._mocap_pending: deque[Output] = deque()
+        self.profile = profile
+        self.timing_s = {"uplink": 0.0, "firmware": 0.0, "sensors": 0.0, "physics": 0.0}
+        if airborne:
+            hover = vehicle.hover_rotor_speed_radps
+            if not self.dynamics.on_ground:
+                self.dynamics.set_state(rotor_speeds_radps=(hover,) * 4)
+            self.firmware.start_hovering(0.0)
+
+    # --- public -----------------------------------------------------------------------------------
+    @property
+    def t_s(self) -> float:
+        """Simulation time (s) = the vehicle's boot clock."""
+        return self.dynamics.t_s
+
+    @property
+    def crash(self) -> Crash | None:
+        return self.dynamics.crash
+
+    @property
+    def truth(self) -> TruthState:
+        d = self.dynamics
+        return TruthState(time_s=d.t_s, position_enu_m=d.position_enu_m, velocity_enu_mps=d.velocity_enu_mps,
+                          attitude_wxyz=d.attitude_wxyz, rate_flu_radps=d.rate_flu_radps)
+
+    def handle_uplink(self, message: Message, t_s: float) -> None:
+        """A message the radio delivers at sim time t_s (applied now, or when the clock reaches t_s)."""
+        if not math.isfinite(t_s):
+            raise ValueError(f"uplink delivery time must be finite, got {t_s!r}")
+        if t_s <= self.t_s + _EPS_S:
+            self._deliver(message, t_s)
+        else:
+            heapq.heappush(self._uplinks, (t_s, self._uplink_seq, message))
+            self._uplink_seq += 1
+
+    def step(self) -> None:
+        """One physics step (see the module docstring for what happens inside)."""
+        if self.profile:
+            self._step_profiled()
+            return
+        t = self.dynamics.t_s
+        if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
+            self._deliver_due(t)
+        if t + _EPS_S >= self._fw.next_s:
+            self._tick_firmware(t)
+        if t + _EPS_S >= self._imu.next_s:
+            self._sample_imu(t)
+        if self._mocap is not None and t + _EPS_S >= self._mocap.next_s:
+            self._sample_mocap(t)
+        if t + _EPS_S >= self._truth.next_s:
+            self._emit_truth(t)
+        self.dynamics.step()
+
+    def run(self, duration_s: float) -> None:
+        """Step until the clock has advanced by duration_s (rounded to whole steps)."""
+        for _ in range(round(duration_s / self.dynamics.dt_s)):
+            self.step()
+
+    def pop_outputs(self) -> list[Output]:
+        """Every output released by now (t_s), oldest release first; later ones stay queued."""
+        out = self._out
+        self._out = []
+        pending = self._mocap_pending
+        now = self.t_s + _EPS_S
+        while pending and pending[0].release_time_s <= now:
+            out.append(pending.popleft())
+        if len(out) > 1:
+            out.sort(key=_release_time)
+        return out
+
+    # --- step parts -------------------------------------------------------------------------------
+    def _deliver_due(self, t: float) -> None:
+        queue = self._uplinks
+        while queue and queue[0][0] <= t + _EPS_S:
+            arrival, _, message = heapq.heappop(queue)
+            self._deliver(message, arrival)
+
+    def _deliver(self, message: Message, arrival_s: float) -> None:
+        if isinstance(message, TimeSync):
+            if message.remote_ns == 0:  # a request; tc1 = 0 would read as another request, so >= 1 ns
+                clock_ns = max(1, round(arrival_s * NS_PER_S))
+                reply = TimeSync(remote_ns=clock_ns, origin_ns=message.origin_ns)
+                self._out.append(Output(arrival_s, "downlink", reply))
+            return
+        self.firmware.receive(message, arrival_s)
+
+    def _tick_firmware(self, t: float) -> None:
+        self._fw.advance(t)
+        self.dynamics.command_rotor_speeds(self.firmware.tick(t, self.dynamics))
+        if t + _EPS_S >= self._heartbeat.next_s:
+            self._heartbeat.advance(t)
+            self._out.append(Output(t, "downlink", self.firmware.heartbeat()))
+        if t + _EPS_S >= self._battery.next_s:
+            self._battery.advance(t)
+            self._out.append(Output(t, "downlink", self.firmware.battery_status()))
+
+    def _sample_imu(self, t: float) -> None:
+        self._imu.advance(t)
+        d = self.dynamics
+        self._out.append(Output(t, "downlink", self.imu.sample(t, d.specific_force_flu(), d.rate_flu_radps)))
+
+    def _sample_mocap(self, t: float) -> None:
+        self._mocap.advance(t)
+        d = self.dynamics
+        pose = self.mocap.sample(t, d.position_enu_m, d.attitude_wxyz)
+        if pose is not None:
+            self._mocap_pending.append(Output(t + self.mocap.latency_s, "mocap", pose))
+
+    def _emit_truth(self, t: float) -> None:
+        self._truth.advance(t)
+        self._out.append(Output(t, "truth", self.truth))
+
+    def _step_profiled(self) -> None:
+        """step() with time.perf_counter accounting per part (for benchmarks; a few us slower)."""
+        clock = time.perf_counter
+        timing = self.timing_s
+        t = self.dynamics.t_s
+        t0 = clock()
+        if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
+            self._deliver_due(t)
+        t1 = clock()
+        if t + _EPS_S >= self._fw.next_s:
+            self._tick_firmware(t)
+        t2 = clock()
+        if t + _EPS_S >= self._imu.next_s:
+            self._sample_imu(t)
+        if self._mocap is not None and t + _EPS_S >= self._mocap.next_s:
+            self._sample_mocap(t)
+        if t + _EPS_S >= self._truth.next_s:
+            self._emit_truth(t)
+        t3 = clock()
+        self.dynamics.step()
+        t4 = clock()
+        timing["uplink"] += t1 - t0
+        timing["firmware"] += t2 - t1
+        timing["sensors"] += t3 - t2
+        timing["physics"] += t4 - t3
+
+
+def _release_time(output: Output) -> float:
+    return output.release_time_s
+
+
+def _checked_start(position, world: World | None, collision_radius_m: float) -> tuple[float, float, float]:
+    """The start position as floats, or a one-line error if it is not a place a vehicle can start."""
+    try:
+        start = tuple(float(v) for v in position)
+    except (TypeError, ValueError):
+        raise UserError(f"start position must be 3 numbers (x, y, z) m, got {position!r}") from None
+    if len(start) != 3 or not all(math.isfinite(v) for v in start):
+        raise UserError(f"start position must be 3 finite numbers (x, y, z) m, got {position!r}")
+    floor = float(world.bounds[4]) if world is not None else 0.0
+    if start[2] < floor:
+        raise UserError(f"start position {list(start)} is below the floor (z = {floor} m)")
+    if world is None:
+        return start
+    if not bool(world.contains(np.array(start))):
+        raise WorldError(f"{world.source}: start position {list(start)} is outside the bounds")
+    clearance = float(world.distance_to_blocks(np.array(start)))
+    if clearance < collision_radius_m:
+        raise WorldError(f"{world.source}: start position {list(start)} is {clearance:.3f} m from a block, "
+                         f"inside the vehicle's collision radius {collision_radius_m:.3f} m")
+    return start
