@@ -20,24 +20,31 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.planned import plan_track
 from groundstation.session import SessionOptions, dump_json, human_summary, run_session
 from groundstation.trajectories.basic import make_builtin
 from link.errors import UserError
 from link.keys import DEFAULT_PREFIX
 from link.signing import add_signing_arguments, signing_from_args
+from link.vehicle import load_vehicle
 from link.world import World, load_world
 from link.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
 
 log = logging.getLogger("cfstack.groundstation")
 BUILTIN_TRAJECTORIES = ("hover", "line", "circle")
-PLANNED_TRAJECTORIES = ("constant-speed", "minsnap")
+DEFAULT_PLANNED = "minsnap"
 
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("moments", "attitude"), default="moments",
                    help="command mode: thrust+moments (500 Hz default) or thrust+attitude (100 Hz default)")
     p.add_argument("--rate", type=float, help="control rate, Hz")
-    p.add_argument("--trajectory", help="hover|line|circle, or with a world constant-speed|minsnap")
+    p.add_argument("--trajectory", help="hover|line|circle; with a world that has a start and goal: "
+                   f"constant-speed|minsnap (default {DEFAULT_PLANNED}, planned from start to goal)")
+    p.add_argument("--speed", type=float, help="planned speed, m/s (constant-speed: the speed; minsnap: the limit)")
+    p.add_argument("--resolution", type=float, nargs="+", metavar="R",
+                   help="planning voxel size, m: one value or three (default: the world's, else planning.toml)")
+    p.add_argument("--margin", type=float, help="planning clearance to blocks, m (default: the world's, else 0.2)")
     p.add_argument("--log", help="log folder (default: a new timestamped folder under ./flights/)")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     p.add_argument("--vehicle", type=int, default=1, help="vehicle id (MAVLink system id)")
@@ -56,6 +63,11 @@ def _setup_logging(args) -> None:
 
 def _track(args, world: World | None, start_airborne: bool):
     """The trajectory to track and the goal: built-in, or planned through the world."""
+    if world is not None and world.start is not None and world.goal is not None \
+            and args.trajectory not in BUILTIN_TRAJECTORIES:
+        planned = plan_track(world, args.trajectory or DEFAULT_PLANNED, load_vehicle(args.vehicle_model),
+                             speed_mps=args.speed, resolution=args.resolution, margin=args.margin)
+        return planned.trajectory, planned.goal_enu_m, planned.summary, planned.plan
     name = args.trajectory or "hover"
     floor = float(world.bounds[4]) if world is not None else 0.0
     if world is not None and world.start is not None:

@@ -47,6 +47,7 @@ class LinkHealth:
     last_downlink_s: float | None = None
     last_heartbeat: Heartbeat | None = None
     last_status: BatteryStatus | None = None
+    uplink_received: int = 0  # unwrapped from the vehicle's 16-bit counter
     last_radio: RadioStatus | None = None
     rtt_s: list[float] = field(default_factory=list)
     offset_s: float = 0.0  # vehicle clock - ground station clock
@@ -100,7 +101,7 @@ class FlightLoop:
             elif isinstance(msg, TimeSync):
                 self._timesync_reply(msg, now_s)
             elif isinstance(msg, BatteryStatus):
-                self.health.last_status = msg
+                self._status(msg)
             elif isinstance(msg, RadioStatus):
                 self.health.last_radio = msg
         for rx in inbox.mocap:
@@ -110,6 +111,13 @@ class FlightLoop:
         for rx in inbox.truth:
             if isinstance(rx.message, TruthState):
                 self.truth = rx.message
+
+    def _status(self, msg: BatteryStatus) -> None:
+        previous = self.health.uplink_received
+        step = (msg.uplink_received - previous) % 65536  # the wire counter wraps at 2^16
+        if step < 32768:  # newer (a reordered older report would look like a huge step)
+            self.health.uplink_received = previous + step
+        self.health.last_status = msg
 
     def _timesync_reply(self, msg: TimeSync, now_s: float) -> None:  # noqa: ARG002
         if msg.remote_ns == 0:
@@ -171,9 +179,21 @@ class FlightLoop:
             self.clock.start()
             while not self.mission.finished:
                 self.tick()
+            self.listen_for_final_report()
         finally:
             signal.signal(signal.SIGINT, previous)
             self.clock.leave()
+
+    def listen_for_final_report(self) -> None:
+        """Keep receiving (and logging) for a while without sending, so the vehicle's last status
+        report counts every uplink frame we sent."""
+        end = self.clock.now() + self.p.final_report_wait_s
+        while True:
+            now = self.clock.wait()
+            self.absorb(now)
+            self.clock.done(now + self.period_s)
+            if now >= end:
+                return
 
     def _interrupt(self, signum, frame) -> None:  # noqa: ARG002
         self.interrupts += 1

@@ -43,6 +43,7 @@ class MissionParams:
     heartbeat_period_s: float
     timesync_period_s: float
     land_timeout_s: float
+    final_report_wait_s: float
     takeoff_height_m: float
     takeoff_speed_mps: float
     landing_speed_mps: float
@@ -67,7 +68,7 @@ def load_mission_params(name_or_path: str = "mission") -> MissionParams:
     return MissionParams(
         **{k: timing.number(k, **pos) for k in ("connect_timeout_s", "arm_timeout_s", "settle_s", "end_hover_s",
                                                  "max_end_hover_s", "heartbeat_period_s", "timesync_period_s",
-                                                 "land_timeout_s")},
+                                                 "land_timeout_s", "final_report_wait_s")},
         **{k: motion.number(k, **pos) for k in ("takeoff_height_m", "takeoff_speed_mps", "landing_speed_mps",
                                                  "touchdown_height_m", "failsafe_descent_speed_mps")},
         goal_position_tolerance_m=goal.number("position_tolerance_m", **pos),
@@ -103,11 +104,13 @@ class MissionStep:
 class Mission:
     """A state machine over Phase. `track` is a trajectory in world coordinates starting at its t=0."""
 
-    def __init__(self, params: MissionParams, track: Trajectory, floor_z_m: float, goal_enu_m: np.ndarray):
+    def __init__(self, params: MissionParams, track: Trajectory, ground_height, goal_enu_m: np.ndarray):
+        """`ground_height(point) -> z` gives the surface to land on below a point (floor or landing pad)."""
         self.p = params
         self.track = track
-        self.floor_z_m = floor_z_m
+        self.ground_height = ground_height
         self.goal = np.asarray(goal_enu_m, float)
+        self.arrival_s = final_arrival_time(track, self.goal, params.goal_position_tolerance_m)
         self.phase = Phase.CONNECT
         self.phase_start_s = 0.0
         self.segment: Trajectory | None = None
@@ -132,7 +135,7 @@ class Mission:
 
     def _descent(self, view: VehicleView, speed: float) -> Trajectory:
         target = view.position_enu_m.copy()
-        target[2] = self.floor_z_m
+        target[2] = self.ground_height(target)
         return Line(view.position_enu_m, target, speed_mps=speed)
 
     @property
@@ -230,7 +233,7 @@ class Mission:
         return MissionStep(self.phase, self._segment_ref(t))
 
     def _land(self, t: float, view: VehicleView) -> MissionStep:
-        touched = view.position_enu_m[2] - self.floor_z_m <= self.p.touchdown_height_m
+        touched = view.position_enu_m[2] - self.ground_height(view.position_enu_m) <= self.p.touchdown_height_m
         if touched or t - self.phase_start_s > self.p.land_timeout_s:
             self._enter(Phase.DISARM, t)
             return self._disarm(t, view)
@@ -251,7 +254,7 @@ class Mission:
         return MissionStep(self.phase, self._segment_ref(t))
 
     def _note_goal(self, t: float, view: VehicleView) -> None:
-        if self.reached_goal_s is not None:
+        if self.reached_goal_s is not None or t - self.track_start_s < self.arrival_s:
             return
         near = np.linalg.norm(view.position_enu_m - self.goal) <= self.p.goal_position_tolerance_m
         slow = np.linalg.norm(view.velocity_enu_mps) <= self.p.goal_speed_tolerance_mps
@@ -280,3 +283,15 @@ class Mission:
             self._enter(Phase.FAILSAFE_HOLD, t, self._hold(view.position_enu_m, t))
             return MissionStep(self.phase, self._segment_ref(t))
         return None
+
+
+def final_arrival_time(track: Trajectory, goal: np.ndarray, tolerance_m: float, step_s: float = 0.01) -> float:
+    """Track time after which the reference stays within tolerance of the goal.
+
+    A vehicle is only judged to have reached the goal from then on: a closed trajectory (a circle)
+    starts at its goal, and being there at the start is not arriving.
+    """
+    t = track.duration_s
+    while t > 0.0 and np.linalg.norm(track.sample(t - step_s).position_m - goal) <= tolerance_m:
+        t -= step_s
+    return max(0.0, t)

@@ -61,7 +61,8 @@ def run_session(opts: SessionOptions) -> dict:
     period = 1.0 / rate
     vehicle = load_vehicle(opts.vehicle_model)
     params = load_mission_params()
-    floor = float(opts.world.bounds[4]) if opts.world is not None else 0.0
+    world = opts.world
+    ground_height = world.support_height if world is not None else (lambda point: 0.0)
     log_dir = Path(opts.log_dir) if opts.log_dir else default_log_dir()
     keys = VehicleKeys(opts.prefix, opts.vehicle_id)
     wall_start = time.monotonic()
@@ -83,7 +84,7 @@ def run_session(opts: SessionOptions) -> dict:
             clock_box["clock"] = clock
             estimator = ErrorStateKF(vehicle, load_mocap_room(opts.mocap_room))
             controller = SE3Controller(vehicle, load_gains(opts.gains))
-            mission = Mission(params, opts.track, floor, opts.goal_enu_m)
+            mission = Mission(params, opts.track, ground_height, opts.goal_enu_m)
             loop = FlightLoop(link, clock, estimator, controller, mission, params, flight_log, opts.mode, period)
             loop.run()
         finally:
@@ -118,7 +119,7 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
     track_start = loop.mission.track_start_s
     reached_at = None
     if track_start is not None:
-        after = (t >= track_start) & np.isfinite(flown).all(axis=1)
+        after = (t >= track_start + loop.mission.arrival_s) & np.isfinite(flown).all(axis=1)
         near = np.linalg.norm(flown - goal, axis=1) <= params.goal_position_tolerance_m
         slow = np.linalg.norm(flown_vel, axis=1) <= params.goal_speed_tolerance_mps
         hits = np.flatnonzero(after & near & slow)
@@ -131,7 +132,9 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
     min_clearance = None
     world = opts.world
     if world is not None and len(world.blocks) and have_truth:
-        pts = truth[airborne & np.isfinite(truth).all(axis=1)]
+        # Clearance of the flight itself: take-off from and landing on a pad touch blocks by design.
+        flight = np.isin(phase, ("settle", "track", "hover", "failsafe_hold"))
+        pts = truth[flight & np.isfinite(truth).all(axis=1)]
         if len(pts):
             min_clearance = float(world.distance_to_blocks(pts).min())
     crashed = loop.mission.result == "crashed"
@@ -153,7 +156,7 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
         "estimator": {"rms_position_error_m": _rms(est_pos_err), "rms_velocity_error_mps": _rms(est_vel_err)},
         "link": {
             "uplink_sent": stats.tx_frames,
-            "uplink_delivered": None if status is None else getattr(status, "uplink_received", None),
+            "uplink_delivered": None if status is None else loop.health.uplink_received,
             "downlink_sent": stats.rx_frames + stats.rx_lost,
             "downlink_delivered": stats.rx_frames,
             "rtt_ms_p50": float(np.percentile(rtts, 50)) if rtts.size else None,

@@ -326,7 +326,8 @@ def _enc_battery(m: BatteryStatus, limits, target: int):
     millivolts = UINT16_NOT_SENT if math.isnan(m.voltage_v) else int(round(m.voltage_v * 1000.0))
     load_permille = int(round(m.load_pct * 10.0))
     return (
-        0, 0, 0, load_permille, millivolts, -1, 0, 0, m.rejected_commands, 0, 0, 0, m.remaining_pct, 0, 0, 0,
+        0, 0, 0, load_permille, millivolts, -1, 0, 0, m.rejected_commands & 0xFFFF, m.uplink_received & 0xFFFF,
+        0, 0, m.remaining_pct, 0, 0, 0,
     )
 
 
@@ -426,7 +427,7 @@ def _dec_radio(v, limits):
 
 def _dec_battery(v, limits):
     voltage = _NAN if v[4] == UINT16_NOT_SENT else v[4] / 1e3
-    return BatteryStatus(voltage, v[12], v[8], v[3] * 0.1), 0
+    return BatteryStatus(voltage, v[12], v[8], v[3] * 0.1, v[9]), 0
 
 
 def _dec_truth(v, limits):

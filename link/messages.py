@@ -119,6 +119,7 @@ class BatteryStatus:
     remaining_pct: int
     rejected_commands: int = 0
     load_pct: float = 0.0
+    uplink_received: int = 0  # uplink messages the vehicle has received (wire: errors_count2, mod 65536)
 
 
 @dataclass(frozen=True)

@@ -60,6 +60,18 @@ class World:
         gap = np.maximum(np.maximum(lo - q, q - hi), 0.0)
         return np.sqrt((gap**2).sum(-1)).min(-1)
 
+    def support_height(self, point) -> float:
+        """Height (m) of the surface a vehicle at `point` would land on: the floor (bounds zmin) or the
+        highest block top whose footprint holds (x, y) and that lies at or below z (a landing pad)."""
+        x, y, z = (float(v) for v in point)
+        support = float(self.bounds[4])
+        if len(self.blocks):
+            b = self.blocks
+            under = (b[:, 0] <= x) & (x <= b[:, 1]) & (b[:, 2] <= y) & (y <= b[:, 3]) & (b[:, 5] <= z + 1e-9)
+            if under.any():
+                support = max(support, float(b[under, 5].max()))
+        return support
+
     def inside_block(self, points: np.ndarray) -> np.ndarray:
         return self.distance_to_blocks(points) <= 0.0
 

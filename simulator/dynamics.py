@@ -106,6 +106,8 @@ class QuadrotorDynamics:
         self.on_ground = self._x[2] <= self.floor_z_m
         if self.on_ground:
             self._rest_on_floor()
+        elif world is not None and self._x[2] == world.support_height(self._x[0:3]):
+            self._rest_at(self._x[2])  # starting on a landing pad (a block top)
         self._check_world(0.0)
 
     # --- state ------------------------------------------------------------------------------------
@@ -306,8 +308,11 @@ class QuadrotorDynamics:
 
     # --- contact ----------------------------------------------------------------------------------
     def _rest_on_floor(self) -> None:
+        self._rest_at(self.floor_z_m)
+
+    def _rest_at(self, ground_z: float) -> None:
         x = self._x
-        x[2] = self.floor_z_m
+        x[2] = ground_z
         x[3:6] = [0.0, 0.0, 0.0]
         x[6:10] = list(level_with_yaw((x[6], x[7], x[8], x[9])))
         x[10:13] = [0.0, 0.0, 0.0]
@@ -346,10 +351,36 @@ class QuadrotorDynamics:
             return None
         lo, hi = self.world.blocks[:, 0::2], self.world.blocks[:, 1::2]
         gaps = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
-        index = int(np.argmin(gaps))
+        touching = gaps < self.collision_radius_m
+        sunk_this_step = max(0.0, -x[5]) * self.dt_s  # the feet may have passed the top within the step
+        pads = touching & self._is_pad_below(p, lo, hi, sunk_this_step)
+        if touching.any() and (touching == pads).all():
+            # Only the tops of blocks right below: a landing pad. The vehicle's feet meet its top face
+            # like the floor (a gentle touchdown rests on it, a fast one is a crash).
+            self._block_check_at = None
+            return self._touch_pad(t_s, float(hi[pads, 2].max()))
+        index = int(np.argmin(np.where(touching & ~pads, gaps, np.inf)))
         return self._end_flight(t_s, f"touched block {index} {self.world.blocks[index].tolist()} "
                                      f"(centre {distance:.3f} m from it, collision radius "
                                      f"{self.collision_radius_m:.3f} m)")
+
+    @staticmethod
+    def _is_pad_below(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, sunk_m: float) -> np.ndarray:
+        """Blocks whose footprint holds the vehicle's (x, y) and whose top was at or below its centre."""
+        inside_xy = (lo[:, 0] <= p[0]) & (p[0] <= hi[:, 0]) & (lo[:, 1] <= p[1]) & (p[1] <= hi[:, 1])
+        return inside_xy & (hi[:, 2] <= p[2] + sunk_m + 1e-9)
+
+    def _touch_pad(self, t_s: float, top_z: float) -> Crash | None:
+        x = self._x
+        if x[2] > top_z:
+            return None  # above the pad, within the collision radius of its top face: still flying
+        sink_mps = -x[5]
+        if sink_mps > self.landing_speed_max_mps:
+            x[2] = top_z
+            return self._end_flight(t_s, f"hit a block top at {sink_mps:.2f} m/s "
+                                          f"(landing limit {self.landing_speed_max_mps:.2f} m/s)")
+        self._rest_at(top_z)
+        return None
 
     def _end_flight(self, t_s: float, reason: str) -> Crash:
         self.crash = Crash(time_s=t_s, position_enu_m=self.position_enu_m, reason=reason)

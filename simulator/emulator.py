@@ -1,25 +1,47 @@
 """The emulator process: simulated Crazyflies behind simulated radios, answering on zenoh.
 
-Takes in: uplink MAVLink frames on each vehicle's uplink key (through the vehicle's uplink radio),
-lockstep acknowledgements on the clock-ack keys.
+Takes in: an EmulatorConfig (vehicle, mocap room, radio profile, world, number of vehicles, seed,
+clock, connection); uplink MAVLink frames on each vehicle's uplink key (through the vehicle's uplink
+radio); lockstep acknowledgements on the clock-ack keys (link.clock).
 Gives out: downlink frames (through the downlink radio), mocap poses (ground network, no radio),
-simulation-only ground truth, and lockstep clock ticks. Keys: link.keys.VehicleKeys.
+simulation-only ground truth, lockstep clock ticks (keys: link.keys.VehicleKeys, one set per vehicle
+id 1..N); `summary()` (one line), `radio_report()` (per-channel statistics and, with keep_ledger,
+every frame's fate), and per-part timing with `profile=True` (for benchmarks).
 
 Clocks: `realtime` paces physics by the monotonic wall clock; `lockstep` advances simulation time
-only when every ground station taking part has acknowledged the previous tick (link.clock), so a run
-depends on the seed alone.
+only when every ground station taking part has acknowledged the previous tick, so a run depends on
+the seed and on what the ground stations send, never on scheduling. Without a ground station the
+lockstep clock stands still (and says so every WAIT_LOG_PERIOD_S).
+
+Lockstep with conservative lookahead. After publishing tick k at t_k the emulator does not know when
+tick k+1 will be (the acks say), but it knows that nothing the ground station sends in answer to tick
+k is pushed into an uplink radio before t_k, hence delivered to a vehicle before t_k + L, with
+L = min over vehicles of RadioChannel.min_latency_s (a true lower bound). So while it waits for the
+acks it may already run every physics step that STARTS before t_k + L (the step starting at s
+applies the uplink frames due by s). Frames those steps produce are kept in each vehicle's outbox,
+stamped with the step count at which a non-lookahead emulator would have published them, and are
+published with the first tick whose time reaches that stamp; tick k's view is therefore unchanged.
+Uplink frames of tick k are pushed into the radio at t_k, as without lookahead. The result is
+byte-identical with or without lookahead (tests/simulator/test_emulator*.py check it).
+Within a tick, the tick record goes out first and its frames right after: the ground station waits
+for the counts the record announces, so it can wake while the frames are still being published.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 import time
+from collections import defaultdict, deque
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from link.clock import NS_PER_S, ClockTick, unpack_ack
 from link.codec import ActuatorLimits, Codec, FrameParser
+from link.errors import UserError
 from link.keys import VehicleKeys
 from link.messages import RadioStatus
 from link.transports import Transport, open_transport
@@ -32,6 +54,16 @@ log = logging.getLogger("cfstack.emulator")
 
 RADIO_STATUS_PERIOD_S = 1.0  # RADIO_STATUS once a second, as SiK radios report it
 WAIT_LOG_PERIOD_S = 5.0  # how often a waiting lockstep emulator says so
+JOIN_POLL_S = 0.05  # nobody in the lockstep yet: how long to block between looks for a join
+LAGGARD_POLL_S = 0.005  # waiting for one ack or uplink frame: longest single block (keeps Ctrl-C prompt)
+REALTIME_MAX_SLEEP_S = 0.05  # the realtime loop never sleeps longer than this (keeps Ctrl-C prompt)
+# A step may run ahead only if it starts this much before the earliest possible uplink delivery, so
+# float rounding of t_k + L can never let a step start at the exact instant a frame becomes due.
+LOOKAHEAD_MARGIN_S = 1e-9
+MAX_VEHICLES = 250  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
+
+DOWNLINK, MOCAP, TRUTH = 0, 1, 2  # outbox channels, in ClockTick count order
+CHANNEL_NAMES = ("downlink", "mocap", "truth")
 
 
 @dataclass
@@ -51,10 +83,35 @@ class EmulatorConfig:
     airborne: bool = False
     signing: object | None = None
     duration_s: float | None = None  # stop after this much simulation time (None: until stopped)
+    lookahead: bool = True  # lockstep: run physics ahead by the uplink's minimum latency (see above)
+    keep_ledger: bool = False  # radios keep every frame's fate (memory grows with the run: tests only)
+    profile: bool = False  # accumulate per-part wall time in Emulator.timing_s (benchmarks)
+
+    def check(self) -> None:
+        """One-line UserError for settings no emulator can run with."""
+        if isinstance(self.vehicles, bool) or not isinstance(self.vehicles, int) \
+                or not 1 <= self.vehicles <= MAX_VEHICLES:
+            raise UserError(f"vehicles: {self.vehicles!r} is not a vehicle count 1..{MAX_VEHICLES}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise UserError(f"seed: {self.seed!r} is not a non-negative integer")
+        if self.clock not in ("lockstep", "realtime"):
+            raise UserError(f"clock: '{self.clock}' is not one of lockstep, realtime")
+        rate = self.physics_rate_hz
+        if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0.0:
+            raise UserError(f"physics rate: {rate!r} is not a positive number of Hz")
+        if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
+            raise UserError(f"duration: {self.duration_s!r} is not a positive number of seconds")
+        starts = self.start_positions_enu_m
+        if starts is not None and len(starts) != self.vehicles:
+            raise UserError(f"{len(starts)} start positions given for {self.vehicles} vehicle(s)")
 
 
 class VehicleNode:
-    """One emulated vehicle with its radio channels and its zenoh keys."""
+    """One emulated vehicle, its two radio channels, its codecs and (once opened) its zenoh keys.
+
+    `step(step_no)` advances it one physics step and queues what it publishes in `outbox` as
+    (step_no, channel, frame); `take_due(n)` hands out those stamped <= n, counting them in
+    `published`. Without transports (never opened) it runs in-process, e.g. in benchmarks."""
 
     def __init__(self, config: EmulatorConfig, vehicle_id: int, rng_seed: np.random.SeedSequence,
                  start: tuple[float, float, float]):
@@ -64,115 +121,223 @@ class VehicleNode:
         self.sim = SimVehicle(config.vehicle, np.random.default_rng(sim_seed), world=config.world,
                               mocap_room=config.mocap_room, vehicle_id=vehicle_id,
                               physics_rate_hz=config.physics_rate_hz, initial_position_enu_m=start,
-                              airborne=config.airborne)
-        self.uplink_radio = RadioChannel(config.radio, np.random.default_rng(up_seed), name=f"uplink {vehicle_id}")
+                              airborne=config.airborne, profile=config.profile)
+        self.uplink_radio = RadioChannel(config.radio, np.random.default_rng(up_seed), name=f"uplink {vehicle_id}",
+                                         keep_ledger=config.keep_ledger)
         self.downlink_radio = RadioChannel(config.radio, np.random.default_rng(down_seed),
-                                           name=f"downlink {vehicle_id}")
+                                           name=f"downlink {vehicle_id}", keep_ledger=config.keep_ledger)
         limits = ActuatorLimits.from_vehicle(config.vehicle)
         self.codec = Codec(system_id=vehicle_id, limits=limits, signing=config.signing)
-        self.truth_codec = Codec(system_id=vehicle_id, limits=limits)
+        self.ground_codec = Codec(system_id=vehicle_id, limits=limits)  # mocap and truth: never signed
         self.parser = FrameParser(self.codec, signing=config.signing)
-        self.counts = {"downlink": 0, "mocap": 0, "truth": 0, "uplink_in": 0}
-        self.mocap_queue: list[tuple[float, bytes]] = []
+        self.outbox: deque[tuple[int, int, bytes]] = deque()
+        self.published = [0, 0, 0]  # frames handed out per channel (DOWNLINK, MOCAP, TRUTH)
+        self.uplink_in = 0  # uplink frames taken from the transport
         self.next_radio_status_s = RADIO_STATUS_PERIOD_S
         self.crash_reported = False
-        self.link: Transport | None = None
+        self.profile = config.profile
+        self.timing_s: dict[str, float] = defaultdict(float)
+        self.link: Transport | None = None  # tx downlink, rx uplink
+        self.clock: Transport | None = None  # tx clock, rx clock_ack
+        self.senders: list[Transport | None] = [None, None, None]  # per outbox channel
 
+    # --- transports -----------------------------------------------------------------------------
     def open(self, config: EmulatorConfig) -> None:
-        opts = config.zenoh_options
-        self.link = open_transport(config.connection, tx=self.keys.downlink, rx=self.keys.uplink, **opts)
-        self.mocap_tx = open_transport(config.connection, tx=self.keys.mocap, **opts)
-        self.truth_tx = open_transport(config.connection, tx=self.keys.truth, **opts)
-        self.clock = open_transport(config.connection, tx=self.keys.clock, rx=self.keys.clock_ack, **opts)
-
-    def clock_wait(self, lock: _Lockstep, emulator: Emulator, tick: int, timeout_s: float) -> None:
-        """Block up to timeout_s for this vehicle's next ack (the caller has nothing else to do)."""
-        for data in self.clock.receive(timeout_s):
-            lock.handle(self.vehicle_id, data, tick, emulator.t_s)
-        self.take_uplink(emulator.t_s)
+        opts = config.zenoh_options if config.connection.startswith("zenoh") else {}
+        try:
+            self.link = open_transport(config.connection, tx=self.keys.downlink, rx=self.keys.uplink, **opts)
+            mocap = open_transport(config.connection, tx=self.keys.mocap, **opts)
+            truth = open_transport(config.connection, tx=self.keys.truth, **opts)
+            self.senders = [self.link, mocap, truth]
+            self.clock = open_transport(config.connection, tx=self.keys.clock, rx=self.keys.clock_ack, **opts)
+        except BaseException:
+            self.close()
+            raise
 
     def close(self) -> None:
-        for t in (self.link, getattr(self, "mocap_tx", None), getattr(self, "truth_tx", None),
-                  getattr(self, "clock", None)):
-            if t is not None:
-                t.close()
+        for transport in (*self.senders, self.link, self.clock):
+            if transport is not None:
+                transport.close()
 
-    # --- the radio edge -------------------------------------------------------------------------
-    def take_uplink(self, now_s: float) -> int:
-        """Offer every uplink frame that has arrived on zenoh to the uplink radio at time now_s."""
-        frames = self.link.receive(0.0)
-        for frame in frames:
-            self.uplink_radio.push(frame, now_s)
-        self.counts["uplink_in"] += len(frames)
+    def receive_uplink(self, push_time_s: float, timeout_s: float = 0.0) -> int:
+        """Offer every uplink frame that has arrived on the transport to the uplink radio at push_time_s."""
+        frames = self.link.receive(timeout_s)
+        if frames:
+            self.push_uplink(frames, push_time_s)
         return len(frames)
 
-    def step(self) -> None:
-        """One physics step: deliver due uplink frames, step the vehicle, route its outputs."""
-        t = self.sim.t_s
-        for frame in self.uplink_radio.pop_due(t):
-            for decoded in self.parser.feed(frame):
-                self.sim.handle_uplink(decoded.message, t)
-        self.sim.step()
-        t = self.sim.t_s
-        for release_s, channel, message in self.sim.pop_outputs():
+    def push_uplink(self, frames: list[bytes], push_time_s: float) -> None:
+        push = self.uplink_radio.push
+        for frame in frames:
+            push(frame, push_time_s)
+        self.uplink_in += len(frames)
+
+    def take_due(self, step_no: int) -> list[tuple[int, bytes]]:
+        """(channel, frame) of every queued frame stamped at or before step_no, counted as published."""
+        outbox = self.outbox
+        due = []
+        published = self.published
+        while outbox and outbox[0][0] <= step_no:
+            _, channel, frame = outbox.popleft()
+            published[channel] += 1
+            due.append((channel, frame))
+        return due
+
+    def send(self, frames: list[tuple[int, bytes]]) -> None:
+        senders = self.senders
+        for channel, frame in frames:
+            senders[channel].send(frame)
+
+    def tick_message(self, tick: int, time_ns: int) -> ClockTick:
+        return ClockTick(tick, time_ns, *self.published)
+
+    # --- one physics step -----------------------------------------------------------------------
+    def step(self, step_no: int) -> None:
+        """Deliver the uplink frames due at the step's start, step the vehicle, route its outputs
+        (stamped step_no: the step count once this step is done)."""
+        if self.profile:
+            self._step_profiled(step_no)
+            return
+        sim = self.sim
+        t = sim.t_s
+        up = self.uplink_radio
+        next_up = up.next_delivery_s()
+        if next_up is not None and next_up <= t:
+            self._deliver_uplink(up.pop_due(t), t)
+        sim.step()
+        t = sim.t_s
+        outbox = self.outbox
+        for release_s, channel, message in sim.pop_outputs():
             if channel == "downlink":
                 self.downlink_radio.push(self.codec.encode(message), release_s)
             elif channel == "mocap":
-                self.mocap_queue.append((release_s, self.truth_codec.encode(message)))
-            elif channel == "truth":
-                self.truth_tx.send(self.truth_codec.encode(message))
-                self.counts["truth"] += 1
+                outbox.append((step_no, MOCAP, self.ground_codec.encode(message)))
+            else:
+                outbox.append((step_no, TRUTH, self.ground_codec.encode(message)))
         if t >= self.next_radio_status_s:
-            self.next_radio_status_s += RADIO_STATUS_PERIOD_S
-            status = RadioStatus(**self.downlink_radio.radio_status())
-            self.downlink_radio.push(self.codec.encode(status), t)
-        self.publish_due(t)
-        if self.sim.crash is not None and not self.crash_reported:
-            self.crash_reported = True
-            c = self.sim.crash
-            pos = ", ".join(f"{v:.3f}" for v in c.position_enu_m)
-            log.warning("vehicle %d crashed at t=%.3f s at (%s) m: %s", self.vehicle_id, c.time_s, pos, c.reason)
-
-    def publish_due(self, t: float) -> None:
+            self._push_radio_status(t)
         for frame in self.downlink_radio.pop_due(t):
-            self.link.send(frame)
-            self.counts["downlink"] += 1
-        while self.mocap_queue and self.mocap_queue[0][0] <= t:
-            self.mocap_tx.send(self.mocap_queue.pop(0)[1])
-            self.counts["mocap"] += 1
+            outbox.append((step_no, DOWNLINK, frame))
+        if sim.crash is not None and not self.crash_reported:
+            self._report_crash()
 
-    def tick_message(self, tick: int, time_ns: int) -> ClockTick:
-        return ClockTick(tick, time_ns, self.counts["downlink"], self.counts["mocap"], self.counts["truth"])
+    def _deliver_uplink(self, frames: list[bytes], t: float) -> None:
+        feed, handle = self.parser.feed, self.sim.handle_uplink
+        for frame in frames:
+            for decoded in feed(frame, True):  # each frame is one whole zenoh sample (a datagram)
+                handle(decoded.message, t)
+
+    def _push_radio_status(self, t: float) -> None:
+        self.next_radio_status_s += RADIO_STATUS_PERIOD_S
+        status = RadioStatus(**self.downlink_radio.radio_status(reverse=self.uplink_radio))
+        self.downlink_radio.push(self.codec.encode(status), t)
+
+    def _report_crash(self) -> None:
+        self.crash_reported = True
+        c = self.sim.crash
+        pos = ", ".join(f"{v:.3f}" for v in c.position_enu_m)
+        log.warning("vehicle %d crashed at t=%.3f s at (%s) m: %s", self.vehicle_id, c.time_s, pos, c.reason)
+
+    def _step_profiled(self, step_no: int) -> None:
+        """step() with time.perf_counter accounting per part (a few us slower; benchmarks only).
+        The vehicle's own split (uplink handling, firmware, sensors, physics) is in sim.timing_s."""
+        clock = time.perf_counter
+        timing = self.timing_s
+        sim = self.sim
+        t = sim.t_s
+        t0 = clock()
+        frames = self.uplink_radio.pop_due(t)
+        t1 = clock()
+        self._deliver_uplink(frames, t)
+        t2 = clock()
+        sim.step()
+        t3 = clock()
+        t = sim.t_s
+        outputs = sim.pop_outputs()
+        t4 = clock()
+        encode_s = radio_s = 0.0
+        outbox = self.outbox
+        for release_s, channel, message in outputs:
+            a = clock()
+            if channel == "downlink":
+                frame = self.codec.encode(message)
+                b = clock()
+                self.downlink_radio.push(frame, release_s)
+                radio_s += clock() - b
+            else:
+                outbox.append((step_no, MOCAP if channel == "mocap" else TRUTH, self.ground_codec.encode(message)))
+                b = clock()
+            encode_s += b - a
+        t5 = clock()
+        if t >= self.next_radio_status_s:
+            self._push_radio_status(t)
+        for frame in self.downlink_radio.pop_due(t):
+            outbox.append((step_no, DOWNLINK, frame))
+        if sim.crash is not None and not self.crash_reported:
+            self._report_crash()
+        t6 = clock()
+        timing["radio"] += (t1 - t0) + radio_s + (t6 - t5)
+        timing["decode"] += t2 - t1
+        timing["outputs"] += t4 - t3
+        timing["encode"] += encode_s
+        timing["route"] += (t5 - t4) - encode_s - radio_s
 
 
 class Emulator:
+    """N VehicleNodes on one simulation clock. `with Emulator(config) as emu: emu.run()`."""
+
     def __init__(self, config: EmulatorConfig):
+        config.check()
         self.config = config
         seeds = np.random.SeedSequence(config.seed).spawn(config.vehicles)
         starts = config.start_positions_enu_m or default_starts(config.world, config.vehicles, config.airborne)
         self.nodes = [VehicleNode(config, i + 1, seeds[i], starts[i]) for i in range(config.vehicles)]
         self.dt_s = 1.0 / config.physics_rate_hz
-        self.steps = 0
+        self.lookahead_s = min(n.uplink_radio.min_latency_s for n in self.nodes) if config.lookahead else 0.0
+        self.steps = 0  # physics steps done (lockstep: may run ahead of the last tick, see the docstring)
+        self.tick = -1  # the last lockstep tick published
+        self.tick_steps = 0  # the step count (simulation time) of that tick
+        self.lookahead_steps = 0  # steps run while waiting for acks
         self.stopped = False
-        self.wall_start = 0.0
+        self.wall_start = time.monotonic()
+        self.wait_log_period_s = WAIT_LOG_PERIOD_S
+        self.timing_s: dict[str, float] = defaultdict(float)  # transport parts, with config.profile
+        # the run ends at the step boundary nearest the duration
+        self.duration_steps = (None if config.duration_s is None
+                               else max(1, math.ceil(config.duration_s / self.dt_s - 0.5)))
+        self._last_progress = time.monotonic()
 
     @property
     def t_s(self) -> float:
+        """Simulation time of the physics (s); in lockstep, possibly ahead of the last tick."""
         return self.steps * self.dt_s
 
+    @property
+    def tick_time_s(self) -> float:
+        """Simulation time of the last tick published (s): what the ground stations have seen."""
+        return self.tick_steps * self.dt_s
+
     def __enter__(self) -> Emulator:
-        for node in self.nodes:
-            node.open(self.config)
+        try:
+            for node in self.nodes:
+                node.open(self.config)
+        except BaseException:
+            self.close()
+            raise
         return self
 
     def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
         for node in self.nodes:
             node.close()
 
     def step_all(self) -> None:
-        for node in self.nodes:
-            node.step()
         self.steps += 1
+        n = self.steps
+        for node in self.nodes:
+            node.step(n)
 
     def run(self) -> None:
         self.wall_start = time.monotonic()
@@ -181,83 +346,193 @@ class Emulator:
         else:
             self.run_lockstep()
 
-    def finished(self) -> bool:
-        return self.stopped or (self.config.duration_s is not None and self.t_s >= self.config.duration_s)
+    def _duration_reached(self, steps: int) -> bool:
+        return self.duration_steps is not None and steps >= self.duration_steps
 
+    # --- realtime -------------------------------------------------------------------------------
     def run_realtime(self) -> None:
+        """Step at the wall clock's pace; uplink frames enter the radio at the current sim time."""
         start = time.monotonic()
-        while not self.finished():
+        while not self.stopped and not self._duration_reached(self.steps):
             for node in self.nodes:
-                node.take_uplink(self.t_s)
+                node.receive_uplink(self.t_s)
             self.step_all()
+            for node in self.nodes:
+                node.send(node.take_due(self.steps))
             lag = start + self.t_s - time.monotonic()
             if lag > 0:
-                time.sleep(lag)
+                time.sleep(min(lag, REALTIME_MAX_SLEEP_S))
 
+    # --- lockstep -------------------------------------------------------------------------------
     def run_lockstep(self) -> None:
         lock = _Lockstep()
-        tick = -1  # the last tick published
-        last_log = time.monotonic()
-        while not self.finished():
-            got = self.collect_acks(lock, tick)
-            if not lock.participants:
-                if time.monotonic() - last_log > WAIT_LOG_PERIOD_S:
-                    log.info("lockstep: waiting for a ground station to join (t=%.3f s)", self.t_s)
-                    last_log = time.monotonic()
-                if not got:
-                    self.nodes[0].clock_wait(lock, self, tick, timeout_s=0.05)
-                continue
-            if not lock.ready(self.nodes, tick):
-                if time.monotonic() - last_log > WAIT_LOG_PERIOD_S:
-                    log.info("lockstep: waiting for the ground station to finish tick %d (t=%.3f s)",
-                             tick, self.t_s)
-                    last_log = time.monotonic()
-                if not got:
-                    self.wait_for_laggard(lock, tick)
-                continue
-            target_ns = min(lock.participants.values())
-            while round(self.t_s * NS_PER_S) < target_ns and not self.finished():
-                self.step_all()
-            tick += 1
-            now_ns = round(self.t_s * NS_PER_S)
-            lock.acked.clear()
-            for node in self.nodes:
-                if node.vehicle_id in lock.participants:
-                    node.clock.send(node.tick_message(tick, now_ns).pack())
+        self._last_progress = time.monotonic()
+        while not self.stopped and not self._duration_reached(self.tick_steps):
+            if self.await_lockstep(lock):
+                self.publish_next_tick(lock)
 
-    def wait_for_laggard(self, lock: _Lockstep, tick: int) -> None:
-        """Block briefly on whatever the lockstep is waiting for: an ack, or uplink frames."""
+    def await_lockstep(self, lock: _Lockstep) -> bool:
+        """Until every participant has acked the last tick and its uplink frames are in: poll, run
+        ahead where that is safe, otherwise block briefly on what is missing. False if stopped."""
+        prof = self.config.profile
+        clock = time.perf_counter
+        while not self.stopped:
+            t0 = clock() if prof else 0.0
+            self.poll(lock)
+            if prof:
+                self.timing_s["poll"] += clock() - t0
+            if lock.participants and lock.ready(self.nodes, self.tick):
+                return True
+            if self.can_look_ahead(lock):
+                self.step_all()
+                self.lookahead_steps += 1
+                continue
+            t0 = clock() if prof else 0.0
+            self.wait_briefly(lock)
+            if prof:
+                self.timing_s["wait"] += clock() - t0
+            self.log_if_waiting(lock)
+        return False
+
+    def can_look_ahead(self, lock: _Lockstep) -> bool:
+        """Whether the next physics step can run before the acks of the last tick are in: it starts
+        before any answer to that tick can reach a vehicle (t_k + L)."""
+        if self.tick < 0 or not lock.participants:
+            return False
+        return self.steps * self.dt_s < self.tick_time_s + self.lookahead_s - LOOKAHEAD_MARGIN_S
+
+    def poll(self, lock: _Lockstep) -> None:
+        """Take every pending ack and uplink frame without blocking."""
+        tick_time_s = self.tick_time_s
+        for node in self.nodes:
+            for data in node.clock.receive(0.0):
+                lock.handle(node.vehicle_id, data, self.tick, tick_time_s)
+            node.receive_uplink(tick_time_s)
+
+    def wait_briefly(self, lock: _Lockstep) -> None:
+        """Block a little on whatever the lockstep is waiting for: a join, an ack, or uplink frames."""
+        tick_time_s = self.tick_time_s
+        if not lock.participants:
+            node = self.nodes[0]
+            for data in node.clock.receive(JOIN_POLL_S):
+                lock.handle(node.vehicle_id, data, self.tick, tick_time_s)
+            return
         for vid in lock.participants:
             node = self.nodes[vid - 1]
             if vid not in lock.acked:
-                node.clock_wait(lock, self, tick, timeout_s=0.002)
+                for data in node.clock.receive(LAGGARD_POLL_S):
+                    lock.handle(vid, data, self.tick, tick_time_s)
                 return
-            if node.counts["uplink_in"] < lock.uplink_expected.get(vid, 0):
-                for frame in node.link.receive(0.002):
-                    node.uplink_radio.push(frame, self.t_s)
-                    node.counts["uplink_in"] += 1
+            if node.uplink_in < lock.uplink_expected.get(vid, 0):
+                node.receive_uplink(tick_time_s, LAGGARD_POLL_S)
                 return
 
-    def collect_acks(self, lock: _Lockstep, tick: int) -> bool:
-        """Read every pending ack and uplink frame without blocking; True if anything arrived."""
-        got = False
+    def log_if_waiting(self, lock: _Lockstep) -> None:
+        now = time.monotonic()
+        if now - self._last_progress < self.wait_log_period_s:
+            return
+        self._last_progress = now
+        if not lock.participants:
+            log.info("lockstep: waiting for a ground station to join (simulation time %.3f s)", self.tick_time_s)
+        else:
+            missing = sorted(set(lock.participants) - lock.acked) or sorted(lock.participants)
+            log.info("lockstep: waiting for the ground station(s) of vehicle(s) %s to finish tick %d "
+                     "(simulation time %.3f s)", ", ".join(map(str, missing)), self.tick, self.tick_time_s)
+
+    def next_tick_steps(self, target_ns: int) -> int:
+        """The step count of the next tick: the first step boundary at or after target_ns (never
+        before the last tick), capped at the duration."""
+        dt_ns = self.dt_s * NS_PER_S
+        n = max(self.tick_steps, math.floor(target_ns / dt_ns) - 1)
+        while round(n * self.dt_s * NS_PER_S) < target_ns:
+            n += 1
+        if self.duration_steps is not None:
+            n = min(n, max(self.duration_steps, self.tick_steps))
+        return n
+
+    def publish_next_tick(self, lock: _Lockstep) -> None:
+        """Step to the next tick time, publish the tick record, then the frames due by then."""
+        n = self.next_tick_steps(min(lock.participants.values()))
+        while self.steps < n and not self.stopped:
+            self.step_all()
+        n = min(n, self.steps)
+        prof = self.config.profile
+        t0 = time.perf_counter() if prof else 0.0
+        self.tick += 1
+        self.tick_steps = n
+        time_ns = round(n * self.dt_s * NS_PER_S)
+        lock.acked.clear()
+        due = [node.take_due(n) for node in self.nodes]
         for node in self.nodes:
-            for data in node.clock.receive(0.0):
-                got = True
-                lock.handle(node.vehicle_id, data, tick, self.t_s)
-            got = node.take_uplink(self.t_s) > 0 or got
-        return got
+            if node.vehicle_id in lock.participants:
+                node.clock.send(node.tick_message(self.tick, time_ns).pack())
+        for node, frames in zip(self.nodes, due, strict=True):
+            node.send(frames)
+        self._last_progress = time.monotonic()
+        if prof:
+            self.timing_s["send"] += time.perf_counter() - t0
 
+    # --- reports --------------------------------------------------------------------------------
     def summary(self) -> str:
         wall = time.monotonic() - self.wall_start
-        parts = [f"emulator: stopped at t={self.t_s:.3f} s simulated ({wall:.1f} s wall), "
-                 f"{len(self.nodes)} vehicle(s)"]
+        sim_s = self.tick_time_s if self.config.clock == "lockstep" else self.t_s
+        rtf = sim_s / wall if wall > 0 else 0.0
+        parts = [f"emulator: stopped at t={sim_s:.3f} s simulated ({wall:.1f} s wall, {rtf:.1f}x), "
+                 f"{len(self.nodes)} vehicle(s), seed {self.config.seed}"]
+        if self.config.clock == "lockstep":
+            parts[0] += f", {self.tick + 1} ticks"
         for node in self.nodes:
             up, down = node.uplink_radio.stats, node.downlink_radio.stats
-            crash = "crashed" if node.sim.crash else "ok"
+            crash = "ok"
+            if node.sim.crash is not None:
+                c = node.sim.crash
+                crash = f"crashed at t={c.time_s:.3f} s at ({', '.join(f'{v:.2f}' for v in c.position_enu_m)}) m"
             parts.append(f"v{node.vehicle_id}: uplink {up.delivered}/{up.offered} delivered, "
-                         f"downlink {down.delivered}/{down.offered}, {crash}")
+                         f"downlink {down.delivered}/{down.offered}, "
+                         f"rejected {node.sim.firmware.rejected_commands}, {crash}")
         return "; ".join(parts)
+
+    def radio_report(self) -> dict:
+        """Per vehicle and direction: the radio's counters and, with keep_ledger, every offered
+        frame's fate [offered_s, bytes, drop cause or null, [delivery_s...]] in offer order."""
+        report = {"seed": self.config.seed, "radio": self.config.radio.name, "vehicles": {}}
+        for node in self.nodes:
+            entry = {}
+            for name, radio in (("uplink", node.uplink_radio), ("downlink", node.downlink_radio)):
+                s = radio.stats
+                entry[name] = {
+                    "offered": s.offered, "delivered": s.delivered, "duplicated": s.duplicated,
+                    "corrupted": s.corrupted, "dropped": {str(cause): count for cause, count in s.dropped.items()},
+                    "dropped_total": s.dropped_total, "pending": radio.pending,
+                    "ledger": [[f.offered_s, f.size_bytes, f.drop_cause and str(f.drop_cause), list(f.delivery_s)]
+                               for f in radio.ledger] if radio.keep_ledger else None,
+                }
+            entry["rejected_commands"] = node.sim.firmware.rejected_commands
+            entry["crash"] = None if node.sim.crash is None else {
+                "time_s": node.sim.crash.time_s, "position_enu_m": list(node.sim.crash.position_enu_m),
+                "reason": node.sim.crash.reason}
+            report["vehicles"][str(node.vehicle_id)] = entry
+        return report
+
+    def write_radio_report(self, path: str | Path) -> None:
+        try:
+            Path(path).write_text(json.dumps(self.radio_report()))
+        except OSError as err:
+            raise UserError(f"{path}: cannot write the radio report ({err.strerror})") from None
+
+    def timing_report(self) -> dict[str, float]:
+        """Seconds spent per part (with config.profile): the vehicles' own split (uplink handling,
+        firmware, sensors, physics), radio, encode/decode, routing, and the transport's send, poll
+        and wait."""
+        total: dict[str, float] = defaultdict(float)
+        for node in self.nodes:
+            for name, seconds in node.sim.timing_s.items():
+                total[name] += seconds
+            for name, seconds in node.timing_s.items():
+                total[name] += seconds
+        for name, seconds in self.timing_s.items():
+            total[name] += seconds
+        return dict(total)
 
 
 def default_starts(world: World | None, count: int, airborne: bool) -> list[tuple[float, float, float]]:
@@ -268,7 +543,7 @@ def default_starts(world: World | None, count: int, airborne: bool) -> list[tupl
     if world is not None and world.start is not None:
         base = np.array(world.start, float)
     if not airborne:
-        base[2] = floor
+        base[2] = floor if world is None else world.support_height(base)
     return [tuple((base + np.array([0.5 * i, 0.0, 0.0])).tolist()) for i in range(count)]
 
 
@@ -280,20 +555,21 @@ class _Lockstep:
         self.uplink_expected: dict[int, int] = {}
         self.acked: set[int] = set()
 
-    def handle(self, vehicle_id: int, data: bytes, tick: int, now_s: float) -> None:
+    def handle(self, vehicle_id: int, data: bytes, tick: int, tick_time_s: float) -> None:
+        """One ack from the ground station of vehicle_id; tick = the last tick published, at tick_time_s."""
         ack = unpack_ack(data)
         if ack is None:
             log.warning("lockstep: ignored a malformed clock ack for vehicle %d", vehicle_id)
             return
         if ack.leaving:
-            self.participants.pop(vehicle_id, None)
+            if self.participants.pop(vehicle_id, None) is not None:
+                log.info("lockstep: the ground station of vehicle %d left at t=%.3f s", vehicle_id, tick_time_s)
             self.acked.discard(vehicle_id)
-            log.info("lockstep: the ground station of vehicle %d left at t=%.3f s", vehicle_id, now_s)
             return
         if ack.tick == -1:
             if vehicle_id not in self.participants:
-                log.info("lockstep: a ground station joined for vehicle %d at t=%.3f s", vehicle_id, now_s)
-            self.participants[vehicle_id] = round(now_s * NS_PER_S)
+                log.info("lockstep: a ground station joined for vehicle %d at t=%.3f s", vehicle_id, tick_time_s)
+            self.participants[vehicle_id] = round(tick_time_s * NS_PER_S)
         elif ack.tick == tick and vehicle_id in self.participants:
             self.participants[vehicle_id] = ack.next_wakeup_ns
         else:
@@ -305,6 +581,6 @@ class _Lockstep:
         for vid in self.participants:
             if tick >= 0 and vid not in self.acked:
                 return False
-            if nodes[vid - 1].counts["uplink_in"] < self.uplink_expected.get(vid, 0):
+            if nodes[vid - 1].uplink_in < self.uplink_expected.get(vid, 0):
                 return False
         return True

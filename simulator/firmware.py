@@ -149,6 +149,7 @@ class Firmware:
         self.armed = False
         self.mode = VehicleMode.IDLE
         self.rejected_commands = 0
+        self.uplink_received = 0  # every uplink message delivered to the vehicle, reported in SYS_STATUS
         self.ignored_setpoints = 0  # valid setpoints that arrived disarmed or while landing
         self.last_ground_station_heartbeat_s: float | None = None
         self._shutdown_latched = False
@@ -167,6 +168,7 @@ class Firmware:
     # --- uplink -----------------------------------------------------------------------------------
     def receive(self, message, arrival_s: float) -> bool:
         """Take one uplink message that arrived at sim time arrival_s; False if it was rejected."""
+        self.uplink_received += 1
         if isinstance(message, ThrustMoment):
             return self._take_setpoint(message, arrival_s, self._valid_thrust_moment(message))
         if isinstance(message, AttitudeTarget):
@@ -339,7 +341,8 @@ class Firmware:
         v = self.vehicle
         soc = self.state_of_charge
         return BatteryStatus(voltage_v=v.battery_empty_v + (v.battery_full_v - v.battery_empty_v) * soc,
-                             remaining_pct=int(round(100.0 * soc)), rejected_commands=self.rejected_commands)
+                             remaining_pct=int(round(100.0 * soc)), rejected_commands=self.rejected_commands,
+                             uplink_received=self.uplink_received)
 
     def _draw_battery(self, rotor_speeds) -> None:
         rotor_power_w = self._k_d * sum(w * w * w for w in rotor_speeds)

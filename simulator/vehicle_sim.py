@@ -255,7 +255,10 @@ def _checked_start(position, world: World | None, collision_radius_m: float) -> 
     if not bool(world.contains(np.array(start))):
         raise WorldError(f"{world.source}: start position {list(start)} is outside the bounds")
     clearance = float(world.distance_to_blocks(np.array(start)))
-    if clearance < collision_radius_m:
+    pad_top = world.support_height(start)
+    # On or just above a landing pad (a block top right below) is fine: the nearest block is the pad.
+    over_pad = pad_top > floor and clearance >= start[2] - pad_top - 1e-12
+    if clearance < collision_radius_m and not over_pad:
         raise WorldError(f"{world.source}: start position {list(start)} is {clearance:.3f} m from a block, "
                          f"inside the vehicle's collision radius {collision_radius_m:.3f} m")
     return start
