@@ -10,7 +10,9 @@ the ground station never imports the simulator: the child is another program.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
+import math
 import os
 import socket
 import subprocess
@@ -22,7 +24,8 @@ import numpy as np
 
 from groundstation.planned import plan_track
 from groundstation.session import SessionOptions, dump_json, human_summary, run_session
-from groundstation.trajectories.basic import make_builtin
+from groundstation.step_analysis import analyze_step, plot_step
+from groundstation.trajectories.basic import Step, load_trajectory_params, make_builtin
 from link.errors import UserError
 from link.keys import DEFAULT_PREFIX
 from link.signing import add_signing_arguments, signing_from_args
@@ -109,8 +112,14 @@ def groundstation_command(argv: list[str]) -> int:
     _setup_logging(args)
     world = load_world(args.world) if args.world else None
     track, goal, extra, plan = _track(args, world, start_airborne=False)
-    summary = run_session(_options(args, world, track, goal, extra, plan, args.clock, zenoh_options_from_args(args)))
-    return _report(summary, args.json)
+    result = run_session(_options(args, world, track, goal, extra, plan, args.clock, zenoh_options_from_args(args)))
+    return _report(result.summary, args.json)
+
+
+class FlightFailed(UserError):
+    """The vehicle did not fly the experiment: a normal (if unhappy) outcome, exit code 1."""
+
+    exit_code = 1
 
 
 def _free_port() -> int:
@@ -155,15 +164,20 @@ class EmulatorChild:
         return lines[-1] if lines else ""
 
 
-def fly_command(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="cfstack fly",
-                                description="One command: start an emulator, fly, land, log, summarise.")
-    p.add_argument("world", nargs="?", help="world JSON file (default: an empty room)")
+def _session_arguments(p: argparse.ArgumentParser) -> None:
+    """What `fly` and `step` share: the emulator they start and how they fly against it."""
     _common(p)
     p.add_argument("--radio", default="crazyradio", help="radio profile for the emulator")
     p.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
     p.add_argument("--seed", type=int, default=1, help="seed of every random source")
     p.add_argument("--from-ground", action="store_true", help="take off from the floor below the start")
+
+
+def fly_command(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="cfstack fly",
+                                description="One command: start an emulator, fly, land, log, summarise.")
+    p.add_argument("world", nargs="?", help="world JSON file (default: an empty room)")
+    _session_arguments(p)
     args = p.parse_args(argv)
     _setup_logging(args)
     world = load_world(args.world) if args.world else None
@@ -172,21 +186,81 @@ def fly_command(argv: list[str]) -> int:
             print(f"warning: {warning}", file=sys.stderr)
     airborne = not args.from_ground and world is not None and world.start is not None
     track, goal, extra, plan = _track(args, world, start_airborne=airborne)
-    zopts = zenoh_options_from_args(args)
+    result = _fly_with_emulator(args, world, airborne, _options(args, world, track, goal, extra, plan, args.clock,
+                                                                  zenoh_options_from_args(args)))
+    return _report(result.summary, args.json)
+
+
+def _fly_with_emulator(args, world, airborne: bool, opts: SessionOptions):
+    """Run the session against a child emulator (or the one --connect names)."""
+    zopts = opts.zenoh_options
     child = None
     if not zopts.get("connect"):
-        child = EmulatorChild(args, args.world, airborne, args.clock)
+        child = EmulatorChild(args, getattr(args, "world", None), airborne, args.clock)
         child.check_started()
-        zopts = {**zopts, "connect": [child.endpoint], "listen": []}
+        opts.zenoh_options = {**zopts, "connect": [child.endpoint], "listen": []}
     try:
-        summary = run_session(_options(args, world, track, goal, extra, plan, args.clock, zopts))
+        return run_session(opts)
     finally:
         if child is not None:
             line = child.stop()
             if line and args.verbose:
                 print(line, file=sys.stderr)
-    return _report(summary, args.json)
 
 
 def step_command(argv: list[str]) -> int:
-    raise UserError("cfstack step: not built yet")
+    """The lab report's tuning experiment: hover, step along one axis, measure the response."""
+    defaults = load_trajectory_params().step
+    p = argparse.ArgumentParser(prog="cfstack step", description=step_command.__doc__)
+    p.add_argument("--axis", choices=("x", "y", "z"), default=defaults.axis)
+    p.add_argument("--size", type=float, default=defaults.size_m, help="step size, m")
+    p.add_argument("--hold", type=float, default=defaults.hold_s, help="time to hold after the step, s")
+    _session_arguments(p)
+    args = p.parse_args(argv)
+    _setup_logging(args)
+    if not math.isfinite(args.size) or args.size == 0:
+        raise UserError(f"--size {args.size}: must be a non-zero number of metres")
+    start = np.array([0.0, 0.0, load_trajectory_params().hover.height_m])
+    track = Step(start, args.axis, args.size, hold_s=args.hold, step_at_s=defaults.step_at_s)
+    goal = track.end_m
+    opts = _options(args, None, track, goal, {"trajectory": f"step-{args.axis}"}, None, args.clock,
+                    zenoh_options_from_args(args))
+    result = _fly_with_emulator(args, None, False, opts)
+    if "track" not in result.record.phase:
+        print(human_summary(result.summary), file=sys.stderr)
+        raise FlightFailed(f"the flight ended ({result.summary['result']}) before the step was flown")
+    metrics, png = analyse_step_flight(result, track, args.axis)
+    summary = result.summary | {"step": metrics, "step_plot": str(png)}
+    if args.json:
+        print(dump_json(summary))
+    else:
+        print(human_summary(result.summary))
+        print(step_report(metrics, png))
+    return 0 if result.summary["result"] == "reached_goal" else 1
+
+
+def analyse_step_flight(result, track: Step, axis: str) -> tuple[dict, Path]:
+    """Step metrics of the flown axis (truth when the link has it, else the estimate) and Fig. 1's plot."""
+    rec = result.record
+    index = "xyz".index(axis)
+    track_start = next(t for t, phase in zip(rec.t, rec.phase, strict=True) if phase == "track")
+    rows = [(t, truth if truth is not None else est)
+            for t, phase, truth, est in zip(rec.t, rec.phase, rec.truth, rec.est, strict=True)
+            if phase in ("track", "hover") and (truth is not None or est is not None)]
+    t = np.array([r[0] for r in rows]) - track_start
+    y = np.array([r[1][index] for r in rows])
+    metrics = analyze_step(t, y, track.step_at_s, float(track.start_m[index]), float(track.end_m[index]))
+    png = Path(result.summary["log_dir"]) / f"step_{axis}.png"
+    plot_step(t, y, metrics, png, axis_name=axis)
+    return dataclasses.asdict(metrics), png
+
+
+def step_report(m: dict, png: Path) -> str:
+    return "\n".join([
+        f"step {m['initial_m']:.3f} -> {m['target_m']:.3f} m at t = {m['step_time_s']:.2f} s",
+        f"steady-state error {m['steady_state_error_m']:.4f} m, overshoot {m['overshoot_m']:.4f} m "
+        f"({m['percent_overshoot']:.1f} %), damping ratio {m['damping_ratio']:.3f}",
+        f"rise time {m['rise_time_s']:.3f} s (10-90 %: {m['rise_time_10_90_s']:.3f} s), "
+        f"settling time {m['settling_time_s']:.3f} s (band +-{m['settling_band_m']:.3f} m)",
+        f"plot: {png}",
+    ])

@@ -56,7 +56,13 @@ class SessionOptions:
     plan: dict | None = None
 
 
-def run_session(opts: SessionOptions) -> dict:
+@dataclass
+class SessionResult:
+    summary: dict
+    record: object  # flight.FlightRecord: per-tick reference, estimate and truth
+
+
+def run_session(opts: SessionOptions) -> SessionResult:
     rate = opts.rate_hz or DEFAULT_RATE_HZ[opts.mode]
     period = 1.0 / rate
     vehicle = load_vehicle(opts.vehicle_model)
@@ -93,7 +99,7 @@ def run_session(opts: SessionOptions) -> dict:
                 clock_transport.close()
         summary = grade(loop, opts, params, log_dir, time.monotonic() - wall_start)
         flight_log.write_json("summary.json", summary)
-    return summary
+    return SessionResult(summary, loop.record)
 
 
 def _stack(rows: list) -> np.ndarray:

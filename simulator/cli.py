@@ -1,40 +1,100 @@
 """`cfstack emulator`: start the emulated Crazyflie(s) on zenoh and run until stopped.
 
-Takes in: command-line options (world, vehicles, radio profile, clock, seed, zenoh endpoints, key prefix).
-Gives out: a running emulator (see simulator.emulator); on Ctrl-C or SIGTERM a clean stop and a one-line
-summary on stderr; exit code 0 (2 for bad input).
+Takes in: command-line options (world, vehicles, radio profile, clock, seed, zenoh endpoints, key prefix;
+see `cfstack emulator --help`).
+Gives out: a running emulator (see simulator.emulator); on Ctrl-C or SIGTERM (or after --duration
+simulated seconds) a clean stop and a one-line summary on stderr; with --radio-ledger, a JSON file of
+the radio statistics and every frame's fate. Exit code 0; bad input (files, options) is one line on
+stderr and exit code 2, never a traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 
+from link.errors import UserError
 from link.keys import DEFAULT_PREFIX
 from link.signing import add_signing_arguments, signing_from_args
 from link.vehicle import load_mocap_room, load_vehicle
 from link.world import load_world
 from link.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
-from simulator.emulator import Emulator, EmulatorConfig
+from simulator.emulator import MAX_VEHICLES, Emulator, EmulatorConfig
 from simulator.radio import load_radio_profile
+
+log = logging.getLogger("cfstack.emulator")
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse that reports a bad option as a UserError (one line, exit code 2), not usage + error."""
+
+    def error(self, message: str):
+        raise UserError(f"{message} (see 'cfstack emulator --help')")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"{text} must be a positive number")
+    return value
+
+
+def _vehicle_count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    if not 1 <= value <= MAX_VEHICLES:
+        raise argparse.ArgumentTypeError(f"{value} is not 1..{MAX_VEHICLES}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative (seeds are 0, 1, 2, ...)")
+    return value
+
+
+def _finite_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text} is not a finite number")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="cfstack emulator", description=__doc__.splitlines()[0])
+    p = _OneLineParser(prog="cfstack emulator", description=__doc__.splitlines()[0])
     p.add_argument("--world", help="world JSON file (default: an empty room)")
-    p.add_argument("--vehicles", type=int, default=1, help="number of vehicles (ids 1..N)")
+    p.add_argument("--vehicles", type=_vehicle_count, default=1, help="number of vehicles (ids 1..N)")
     p.add_argument("--vehicle-model", default="crazyflie", help="vehicle name (crazyflie, cf2x) or TOML file")
     p.add_argument("--mocap-room", default="vicon", help="mocap room name or TOML file")
     p.add_argument("--radio", default="crazyradio", help="radio profile name (ideal, crazyradio, lab, harsh) or TOML")
     p.add_argument("--clock", choices=("realtime", "lockstep"), default="lockstep")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=_seed, default=1, help="seed of every random source (>= 0)")
     p.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
-    p.add_argument("--physics-rate", type=float, default=1000.0, help="physics steps per second")
+    p.add_argument("--physics-rate", type=_positive_float, default=1000.0, help="physics steps per second")
     p.add_argument("--airborne", action="store_true", help="start hovering at the start point instead of on the floor")
-    p.add_argument("--start", type=float, nargs=3, metavar=("X", "Y", "Z"), help="start of vehicle 1 (ENU, m)")
-    p.add_argument("--duration", type=float, help="stop after this many simulated seconds")
+    p.add_argument("--start", type=_finite_float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="start of vehicle 1 (ENU, m); further vehicles 0.5 m apart along +x")
+    p.add_argument("--duration", type=_positive_float, help="stop after this many simulated seconds")
+    p.add_argument("--no-lookahead", dest="lookahead", action="store_false",
+                   help="lockstep: do not run physics ahead while waiting for acks (same results, slower)")
+    p.add_argument("--radio-ledger", metavar="FILE",
+                   help="keep every radio frame's fate and write it with the radio statistics to FILE (JSON) "
+                        "at exit (memory grows with the run: for tests and short runs)")
     p.add_argument("--quiet", action="store_true", help="log warnings only")
     add_zenoh_arguments(p)
     add_signing_arguments(p)
@@ -42,24 +102,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
-    from link.errors import UserError
-
-    if args.vehicles < 1 or args.vehicles > 200:
-        raise UserError(f"--vehicles {args.vehicles}: must be 1..200")
     world = load_world(args.world) if args.world else None
     if world is not None:
         for warning in world.warnings:
-            logging.getLogger("cfstack.emulator").warning("%s", warning)
+            log.warning("%s", warning)
     starts = None
     if args.start is not None:
-        starts = [tuple(args.start)] + [(args.start[0] + 0.5 * i, args.start[1], args.start[2])
-                                        for i in range(1, args.vehicles)]
+        x, y, z = args.start
+        starts = [(x + 0.5 * i, y, z) for i in range(args.vehicles)]
     return EmulatorConfig(
         vehicle=load_vehicle(args.vehicle_model), mocap_room=load_mocap_room(args.mocap_room),
         radio=load_radio_profile(args.radio), world=world, vehicles=args.vehicles, seed=args.seed,
         clock=args.clock, physics_rate_hz=args.physics_rate, prefix=args.prefix,
         connection="zenoh", zenoh_options=zenoh_options_from_args(args), start_positions_enu_m=starts,
         airborne=args.airborne, signing=signing_from_args(args), duration_s=args.duration,
+        lookahead=args.lookahead, keep_ledger=args.radio_ledger is not None,
     )
 
 
@@ -76,9 +133,11 @@ def emulator_command(argv: list[str]) -> int:
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
     with emulator:
-        logging.getLogger("cfstack.emulator").info(
-            "emulator up: %d vehicle(s), %s clock, radio %s, seed %d, keys %s/...",
-            config.vehicles, config.clock, config.radio.name, config.seed, config.prefix)
+        log.info("emulator up: %d vehicle(s), %s clock, radio %s, seed %d, keys %s/vehicle/1..%d/..., "
+                 "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, config.seed,
+                 config.prefix, config.vehicles, emulator.lookahead_s * 1e3)
         emulator.run()
+    if args.radio_ledger:
+        emulator.write_radio_report(args.radio_ledger)
     print(emulator.summary(), file=sys.stderr)
     return 0
