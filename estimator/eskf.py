@@ -242,6 +242,7 @@ class ErrorStateKF:
         self._Q_flat = self._Q.reshape(-1)
         self._Q_index = self._q_index()
         self._reset_bookkeeping()
+        self._waiting_poses: list[MocapPose] = []  # poses seen before the first IMU sample
 
     # ------------------------------------------------------------------ public API
 
@@ -271,8 +272,9 @@ class ErrorStateKF:
         if not (math.isfinite(t) and len(f) == 3 and len(w) == 3 and _finite(f) and _finite(w)):
             self._count["invalid_imu"] += 1
             return
-        if not self._nodes:
-            return  # nothing to propagate before the first pose
+        if not self._nodes or self._nodes[0].f is None:
+            if not self._start_at_imu(t):
+                return  # no pose at or before this sample yet: nothing to propagate from
         node = _Node(t, _IMU, f, w)
         if t > self._times[-1]:
             self._append_imu(node)
@@ -286,8 +288,15 @@ class ErrorStateKF:
             self._count["invalid_mocap"] += 1
             return False
         t = float(pose.time_s)
-        if not self._nodes or (len(self._nodes) == 1 and self._nodes[0].f is None and t > self._times[0]):
-            self.initialise(pose)  # no IMU yet: the newest pose is the best start
+        if not self._nodes or (len(self._nodes) == 1 and self._nodes[0].f is None):
+            # No IMU yet: keep the poses; the first IMU sample starts the filter at the newest pose no
+            # later than itself (the downlink may lag the mocap by more than a mocap period).
+            bisect.insort(self._waiting_poses, pose, key=lambda p: p.time_s)
+            horizon = self._waiting_poses[-1].time_s - self.params.buffer_length_s
+            self._waiting_poses = [p for p in self._waiting_poses if p.time_s >= horizon]
+            if not self._nodes:
+                self.initialise(pose)
+                self._waiting_poses = [pose]
             return True
         if t < self._times[0]:
             self._count["stale_mocap"] += 1
@@ -299,6 +308,7 @@ class ErrorStateKF:
                      attitude=quat_normalise(tuple(map(float, pose.attitude_wxyz))))
         if t > self._times[-1]:
             self._queue_future_mocap(node)
+            return True  # queued: decided when the IMU stream reaches its sample time
         else:
             i = bisect.bisect_right(self._times, t)
             self._nodes.insert(i, node)
@@ -348,10 +358,25 @@ class ErrorStateKF:
 
     # ------------------------------------------------------------------ timeline bookkeeping
 
+    def _start_at_imu(self, t: float) -> bool:
+        """Before the first IMU sample: (re)start at the newest waiting pose at or before t, and queue the
+        newer ones as future frames. False when every waiting pose is newer than t."""
+        earlier = [p for p in self._waiting_poses if p.time_s < t]
+        if not earlier:
+            self._count["stale_imu"] += 1
+            return False
+        later = [p for p in self._waiting_poses if p.time_s > t]
+        self.initialise(earlier[-1])
+        self._waiting_poses = []
+        for pose in later:
+            self._queue_future_mocap(_Node(float(pose.time_s), _MOCAP, position=tuple(map(float, pose.position_enu_m)),
+                                           attitude=quat_normalise(tuple(map(float, pose.attitude_wxyz)))))
+        return True
+
     def _reset_bookkeeping(self) -> None:
         self._nodes: list[_Node] = []
         self._times: list[float] = []
-        self._pending: list[_Node] = []  # gated mocap frames newer than the newest IMU sample
+        self._pending: list[_Node] = []  # mocap frames newer than the newest IMU sample, not yet gated
         self._last_accepted_s = -math.inf
         self._consecutive_rejections = 0
         self._last_trimmed_imu_s: float | None = None
@@ -410,10 +435,12 @@ class ErrorStateKF:
         return any(m.time_s == t for m in self._pending)
 
     def _queue_future_mocap(self, node: _Node) -> None:
-        """Gate a frame newer than the newest IMU sample against a prediction; apply it later."""
-        last = self._nodes[-1]
-        x, P, _ = self._propagate(last.x, last.P, last.f, last.w, last.f, last.w, node.time_s - last.time_s)
-        node.status = self._decide(self._innovate(x, P, node), node.time_s)
+        """Hold a frame newer than the newest IMU sample until the IMU stream reaches its time.
+
+        It is gated then, against the state propagated on the real IMU samples up to its sample time:
+        when the downlink's latency exceeds the mocap's (a radio of 20+ ms against a 5 ms Vicon), a
+        gate decided now on a held-IMU prediction over that gap rejects good frames during manoeuvres.
+        """
         bisect.insort(self._pending, node, key=lambda m: m.time_s)
 
     def _replay_from(self, i: int) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 import signal
 from dataclasses import dataclass, field
 
@@ -38,6 +39,7 @@ from link.stats import TimeSyncTracker
 
 log = logging.getLogger("cfstack.groundstation")
 NS = 1_000_000_000
+TRUTH_HISTORY = 512  # truth samples kept to grade the estimate at its own time (~1 s at 500 Hz)
 
 
 @dataclass
@@ -65,6 +67,10 @@ class FlightRecord:
     est_vel: list[np.ndarray] = field(default_factory=list)
     truth: list[np.ndarray | None] = field(default_factory=list)
     truth_vel: list[np.ndarray | None] = field(default_factory=list)
+    # truth at the estimate's own sample time (the estimate lags the tick by the link's latency), so the
+    # estimator is graded on what it estimates, not on the link's delay
+    truth_at_est: list[np.ndarray | None] = field(default_factory=list)
+    truth_vel_at_est: list[np.ndarray | None] = field(default_factory=list)
 
 
 class FlightLoop:
@@ -85,6 +91,7 @@ class FlightLoop:
         self.next_heartbeat_s = 0.0
         self.next_timesync_s = 0.0
         self.commands_stopped = False
+        self.truth_history: deque[TruthState] = deque(maxlen=TRUTH_HISTORY)
         self.timesync = TimeSyncTracker(clock=clock.now, stats=link.radio.stats)
         self.interrupts = 0
 
@@ -111,6 +118,7 @@ class FlightLoop:
         for rx in inbox.truth:
             if isinstance(rx.message, TruthState):
                 self.truth = rx.message
+                self.truth_history.append(rx.message)
 
     def _status(self, msg: BatteryStatus) -> None:
         previous = self.health.uplink_received
@@ -252,6 +260,23 @@ class FlightLoop:
         self.record.est_vel.append(None if est is None else np.array(est.velocity_enu_mps, float))
         self.record.truth.append(None if truth is None else np.array(truth.position_enu_m, float))
         self.record.truth_vel.append(None if truth is None else np.array(truth.velocity_enu_mps, float))
+        at_est = None if est is None else self.truth_at(est.time_s)
+        self.record.truth_at_est.append(None if at_est is None else at_est[0])
+        self.record.truth_vel_at_est.append(None if at_est is None else at_est[1])
+
+    def truth_at(self, t_s: float):
+        """(position, velocity) of the truth at time t_s, interpolated; None outside the history."""
+        history = self.truth_history
+        if not history or not history[0].time_s <= t_s <= history[-1].time_s:
+            return None
+        for older, newer in zip(reversed(history), list(reversed(history))[1:]):  # newest first
+            if newer.time_s <= t_s <= older.time_s:
+                span = older.time_s - newer.time_s
+                f = 0.0 if span <= 0 else (t_s - newer.time_s) / span
+                pos = np.add(newer.position_enu_m, f * np.subtract(older.position_enu_m, newer.position_enu_m))
+                vel = np.add(newer.velocity_enu_mps, f * np.subtract(older.velocity_enu_mps, newer.velocity_enu_mps))
+                return pos, vel
+        return None
 
     def check_health(self, now: float) -> None:
         """Warn once when mocap rate, latency or delivery leave sane bounds."""

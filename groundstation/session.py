@@ -118,9 +118,10 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
     err = np.linalg.norm(flown - ref, axis=1)
     err_tracking = err[tracking & np.isfinite(err)]
     airborne = np.isin(phase, ("takeoff", "settle", "track", "hover", "land", "failsafe_hold", "failsafe_descent"))
-    valid = airborne & np.isfinite(truth).all(axis=1) & np.isfinite(est).all(axis=1)
-    est_pos_err = np.linalg.norm(est[valid] - truth[valid], axis=1)
-    est_vel_err = np.linalg.norm(est_vel[valid] - truth_vel[valid], axis=1)
+    truth_at_est, truth_vel_at_est = _stack(rec.truth_at_est), _stack(rec.truth_vel_at_est)
+    valid = airborne & np.isfinite(truth_at_est).all(axis=1) & np.isfinite(est).all(axis=1)
+    est_pos_err = np.linalg.norm(est[valid] - truth_at_est[valid], axis=1)
+    est_vel_err = np.linalg.norm(est_vel[valid] - truth_vel_at_est[valid], axis=1)
     goal = np.asarray(opts.goal_enu_m, float)
     track_start = loop.mission.track_start_s
     reached_at = None
@@ -159,7 +160,8 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
         "rms_tracking_error_m": _rms(err_tracking),
         "max_tracking_error_m": float(err_tracking.max()) if err_tracking.size else None,
         "final_position_error_m": final_error,
-        "estimator": {"rms_position_error_m": _rms(est_pos_err), "rms_velocity_error_mps": _rms(est_vel_err)},
+        "estimator": {"rms_position_error_m": _rms(est_pos_err), "rms_velocity_error_mps": _rms(est_vel_err)}
+        | _estimator_counts(loop.estimator),
         "link": {
             "uplink_sent": stats.tx_frames,
             "uplink_delivered": None if status is None else loop.health.uplink_received,
@@ -180,6 +182,14 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
         summary["timing"]["achieved_rate_hz"] = loop.clock.achieved_rate_hz()
     summary.update(opts.extra_summary)
     return summary
+
+
+def _estimator_counts(estimator) -> dict:
+    if not estimator.initialised:
+        return {}
+    h = estimator.health()
+    return {"mocap_accepted": h.accepted_mocap, "mocap_rejected_outliers": h.rejected_outliers,
+            "reinitialisations": h.reinitialisations, "imu_lost": h.lost_imu, "imu_reordered": h.reordered_imu}
 
 
 def _rms(values: np.ndarray) -> float | None:

@@ -30,7 +30,9 @@ def builtin_names(package: str, folder: str) -> list[str]:
 def resolve(name_or_path: str | Path, package: str, folder: str, what: str) -> Path:
     """A file path as given, or the built-in file of that name; a clear error if neither exists."""
     candidate = Path(name_or_path)
-    if candidate.suffix == ".toml" or candidate.exists():
+    # A path is what looks like one (a .toml suffix or a folder part); a bare word is a built-in name,
+    # even if a file of that name happens to sit in the current folder.
+    if candidate.suffix == ".toml" or len(candidate.parts) > 1:
         if not candidate.is_file():
             raise ConfigError(f"{candidate}: {what} file not found")
         return candidate

@@ -15,6 +15,7 @@ import logging
 import math
 import signal
 import sys
+from pathlib import Path
 
 from link.errors import UserError
 from link.keys import DEFAULT_PREFIX
@@ -102,6 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
+    if args.radio_ledger is not None and not Path(args.radio_ledger).resolve().parent.is_dir():
+        raise UserError(f"--radio-ledger {args.radio_ledger}: no such directory to write it in")
     world = load_world(args.world) if args.world else None
     if world is not None:
         for warning in world.warnings:

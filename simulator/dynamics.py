@@ -94,6 +94,7 @@ class QuadrotorDynamics:
         self._has_blocks = world is not None and len(world.blocks) > 0
         self._block_check_at: Vec3 | None = None
         self._block_clearance_m = 0.0
+        self._contact_dv_enu: Vec3 = (0.0, 0.0, 0.0)
 
         self._n = 0
         self._x = [float(v) for v in position_enu_m] + [0.0, 0.0, 0.0] + list(quat_normalize(attitude_wxyz)) \
@@ -310,8 +311,20 @@ class QuadrotorDynamics:
     def _rest_on_floor(self) -> None:
         self._rest_at(self.floor_z_m)
 
+    def take_contact_dv_flu(self) -> Vec3:
+        """Velocity change (m/s, body FLU) the floor or a pad imposed since the last call, then zeroed.
+
+        Contact stops the vehicle within one step; an accelerometer integrates that impulse, so the IMU
+        adds this over its sample period (else an estimator would never see the vehicle stop).
+        """
+        dv, self._contact_dv_enu = self._contact_dv_enu, (0.0, 0.0, 0.0)
+        x = self._x
+        return _world_to_body(x[6], x[7], x[8], x[9], *dv)
+
     def _rest_at(self, ground_z: float) -> None:
         x = self._x
+        pdv = self._contact_dv_enu
+        self._contact_dv_enu = (pdv[0] - x[3], pdv[1] - x[4], pdv[2] - x[5])
         x[2] = ground_z
         x[3:6] = [0.0, 0.0, 0.0]
         x[6:10] = list(level_with_yaw((x[6], x[7], x[8], x[9])))

@@ -453,8 +453,10 @@ class Emulator:
     def publish_next_tick(self, lock: _Lockstep) -> None:
         """Step to the next tick time, publish the tick record, then the frames due by then."""
         n = self.next_tick_steps(min(lock.participants.values()))
+        self.flush(n)
         while self.steps < n and not self.stopped:
             self.step_all()
+            self.flush(n)
         n = min(n, self.steps)
         prof = self.config.profile
         t0 = time.perf_counter() if prof else 0.0
@@ -462,13 +464,20 @@ class Emulator:
         self.tick_steps = n
         time_ns = round(n * self.dt_s * NS_PER_S)
         lock.acked.clear()
-        due = [node.take_due(n) for node in self.nodes]
         for node in self.nodes:
             if node.vehicle_id in lock.participants:
                 node.clock.send(node.tick_message(self.tick, time_ns).pack())
-        for node, frames in zip(self.nodes, due, strict=True):
-            node.send(frames)
         self._last_progress = time.monotonic()
+        if prof:
+            self.timing_s["send"] += time.perf_counter() - t0
+
+    def flush(self, step_no: int) -> None:
+        """Publish every vehicle's frames stamped at or before step_no."""
+        prof = self.config.profile
+        t0 = time.perf_counter() if prof else 0.0
+        for node in self.nodes:
+            if node.outbox:
+                node.send(node.take_due(step_no))
         if prof:
             self.timing_s["send"] += time.perf_counter() - t0
 

@@ -195,7 +195,12 @@ class SimVehicle:
     def _sample_imu(self, t: float) -> None:
         self._imu.advance(t)
         d = self.dynamics
-        self._out.append(Output(t, "downlink", self.imu.sample(t, d.specific_force_flu(), d.rate_flu_radps)))
+        f = d.specific_force_flu()
+        dv = d.take_contact_dv_flu()
+        if dv != (0.0, 0.0, 0.0):  # a touchdown since the last sample: its impulse over the sample period
+            period = 1.0 / self.vehicle.imu.rate_hz
+            f = (f[0] + dv[0] / period, f[1] + dv[1] / period, f[2] + dv[2] / period)
+        self._out.append(Output(t, "downlink", self.imu.sample(t, f, d.rate_flu_radps)))
 
     def _sample_mocap(self, t: float) -> None:
         self._mocap.advance(t)

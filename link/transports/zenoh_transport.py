@@ -21,17 +21,36 @@ Design:
   measured on loopback (2 processes, 60 B ping-pong), express changed neither p50 (~0.3 ms) nor p99,
   idle or under a 5 kHz side stream, because zenoh sends a lone sample at once anyway; but it cut a
   burst's throughput ~10x (15 k vs 160-250 k frames/s), since every sample became its own write.
-- Receiving uses a bounded FIFO channel (zenoh.handlers.FifoChannel). One reader thread per transport
-  moves samples from it into a queue.Queue that receive() waits on with a timeout; zenoh is never
-  called from inside a zenoh callback. Closing undeclares the subscriber, which ends the reader (its
-  blocking recv() releases the GIL). Polling try_recv() with sleeps instead measured a similar p50
-  but a worse p99 (0.5-0.7 ms vs 0.4-0.6 ms).
+- Receiving reads zenoh's bounded FIFO channel (zenoh.handlers.FifoChannel) in the caller's own
+  thread: no Python thread sits between zenoh and receive(), so a frame costs no thread handoff and
+  no GIL hand-over, and zenoh's network threads never wait for the GIL (nothing of ours runs in a
+  zenoh callback; zenoh is never called from inside one). receive(0) drains the FIFO with
+  try_recv(). receive(timeout > 0) with nothing there blocks in the FIFO's recv(), which has no
+  timeout in zenoh's API: a per-transport waker thread, started on the first such wait, ends the wait
+  at its deadline by publishing a session-local DELETE sample on the rx key whose attachment names
+  this transport and this wait (Locality.SESSION_LOCAL: it never leaves the process). Only PUT
+  samples are frames: wakes, stale wakes and any other DELETE are skipped. The waker sleeps until the
+  newest deadline and is only woken when a wait ends earlier than it planned, so a wait answered in
+  time costs it nothing. One thread waits in recv() at a time; a second concurrent receive() waits
+  for its turn, then drains. Closing undeclares the subscriber, which ends a blocked recv().
+  A full FIFO blocks zenoh's delivery, which (RELIABLE, BLOCK) slows the sender down.
+  Measured with `cfstack link-bench` (loopback, 2 processes, ThrustMoment out / ImuSample back through
+  Endpoint on both ends; ratios against a bare zenoh publisher + FIFO subscriber with a blocking recv
+  in the same run; 2-core shared machine): the previous design (a reader thread per transport moving
+  samples from the FIFO into a queue.Queue) gave p50 1.8x bare; this one ~1.3-1.4x (details in
+  link.bench and the issue). Alternatives measured on raw zenoh ping-pong (60 B, p50): reader thread
+  + queue.Queue 160-180 us, zenoh Callback(indirect=True) + deque + Condition ~145 us, a direct
+  Callback(indirect=False) 160-230 us and only ~40 k frames/s (each sample takes the GIL from a zenoh
+  thread), try_recv() + time.sleep polling 300-400 us (sleeps here last >= 70 us), this design
+  ~110 us against ~90-100 us bare. sys.setswitchinterval changed nothing measurable: with no Python
+  thread on the data path there is no GIL hand-over left to shorten.
 """
 
 from __future__ import annotations
 
 import atexit
-import queue
+import itertools
+import math
 import threading
 import time
 import weakref
@@ -48,17 +67,88 @@ from link.zenoh_session import (
     zenoh_error_text,
 )
 
-# Bound of the receive buffer (zenoh FIFO and our queue each): several seconds of a 1 kHz stream.
+# Bound of the receive buffer (zenoh's FIFO): several seconds of a 1 kHz stream.
 DEFAULT_QUEUE_FRAMES = 8192
 TRANSPORT_OPTIONS = ("queue_frames", "express")
 DEFAULT_EXPRESS = False  # see the module docstring for the measurement behind this
-# How long close() waits for the reader thread, which ends as soon as the subscriber is undeclared.
-READER_JOIN_TIMEOUT_S = 2.0
-# How often the reader re-checks for close() while our queue is full (the consumer is behind).
-FULL_QUEUE_RETRY_S = 0.05
+# How long close() waits for the waker thread, which ends as soon as it is told to.
+WAKER_JOIN_TIMEOUT_S = 2.0
 MATCHING_POLL_S = 0.005
 
+_PUT = zenoh.SampleKind.PUT
+_WAKE_TAG = b"cfstack-wake"  # attachment prefix of the waker's DELETE samples
+_transport_ids = itertools.count(1)
 _OPEN_TRANSPORTS: weakref.WeakSet[ZenohTransport] = weakref.WeakSet()
+
+
+class _Waker:
+    """Ends a receive() blocked in the FIFO's recv() at its deadline: a thread that publishes a
+    session-local DELETE sample on the rx key, tagged with the wait's token (see the module docstring).
+
+    The receiving thread arms a wait (arm -> token) and disarms it when a frame came first. The thread
+    sleeps until the armed deadline; re-arming with a later deadline does not wake it (it wakes at the
+    earlier one, sees the new deadline and sleeps on), so waits answered in time cost it nothing."""
+
+    def __init__(self, session: zenoh.Session, key: zenoh.KeyExpr, transport_id: int):
+        self._session = session
+        self._key = key
+        self._tag = _WAKE_TAG + f" {transport_id} ".encode()
+        self._condition = threading.Condition()
+        self._wait: tuple[int, float] | None = None  # (wait number, deadline), replaced whole
+        self._fired = 0  # the last wait number woken
+        self._sleeping_until = math.inf
+        self._waits = itertools.count(1)
+        self._closed = False
+        self._thread: threading.Thread | None = None
+
+    def arm(self, timeout_s: float) -> bytes:
+        """Start a wait of `timeout_s`; returns the attachment its wake sample will carry."""
+        number = next(self._waits)
+        deadline = time.monotonic() + timeout_s
+        with self._condition:
+            self._wait = (number, deadline)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name=f"zenoh-wake {self._key}", daemon=True)
+                self._thread.start()
+            elif deadline < self._sleeping_until:
+                self._condition.notify()
+        return self._tag + str(number).encode()
+
+    def disarm(self) -> None:
+        self._wait = None  # a wake already on its way is stale: receive() skips it
+
+    def close(self) -> None:
+        with self._condition:
+            self._closed = True
+            self._condition.notify()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(WAKER_JOIN_TIMEOUT_S)
+
+    def _run(self) -> None:
+        with self._condition:
+            while not self._closed:
+                wait = self._wait
+                now = time.monotonic()
+                if wait is None or wait[0] == self._fired:
+                    self._sleeping_until = math.inf
+                    self._condition.wait()
+                elif now < wait[1]:
+                    self._sleeping_until = wait[1]
+                    self._condition.wait(wait[1] - now)
+                else:
+                    self._fired = wait[0]
+                    self._condition.release()  # never publish holding the lock arm() takes
+                    try:
+                        self._wake(wait[0])
+                    finally:
+                        self._condition.acquire()
+
+    def _wake(self, number: int) -> None:
+        try:
+            self._session.delete(self._key, attachment=self._tag + str(number).encode(),
+                                 allowed_destination=zenoh.Locality.SESSION_LOCAL)
+        except zenoh.ZError:
+            pass  # the session closed under us: the blocked recv() has ended anyway
 
 
 @register_scheme
@@ -80,12 +170,13 @@ class ZenohTransport(Transport):
         if self.capacity < 1:
             raise UserError(f"zenoh:{address}: queue_frames must be >= 1, got {self.capacity}")
         self.express = bool(options.get("express", DEFAULT_EXPRESS))
-        self._inbox: queue.Queue[bytes] = queue.Queue(maxsize=self.capacity)
-        self._closing = threading.Event()
+        self._id = next(_transport_ids)
         self._session: zenoh.Session | None = None
         self._publisher: zenoh.Publisher | None = None
         self._subscriber: zenoh.Subscriber | None = None
-        self._reader: threading.Thread | None = None
+        self._handler = None  # the subscriber's FIFO
+        self._waker: _Waker | None = None
+        self._receiving = threading.Lock()  # held by the one thread blocked in the FIFO's recv()
 
     def open(self) -> None:
         if self.is_open:
@@ -93,7 +184,6 @@ class ZenohTransport(Transport):
         tx_key = _key(self.tx, "tx") if self.tx is not None else None
         rx_key = _key(self.rx, "rx") if self.rx is not None else None
         self._session = acquire_session(self.settings)
-        self._closing.clear()
         try:
             if tx_key is not None:
                 self._publisher = self._session.declare_publisher(
@@ -102,9 +192,8 @@ class ZenohTransport(Transport):
             if rx_key is not None:
                 self._subscriber = self._session.declare_subscriber(
                     rx_key, zenoh.handlers.FifoChannel(self.capacity))
-                self._reader = threading.Thread(target=self._read_samples, args=(self._subscriber.handler,),
-                                                name=f"zenoh-rx {self.rx}", daemon=True)
-                self._reader.start()
+                self._handler = self._subscriber.handler
+                self._waker = _Waker(self._session, rx_key, self._id)
         except zenoh.ZError as err:
             self._undeclare()
             release_session(self.settings)
@@ -119,14 +208,12 @@ class ZenohTransport(Transport):
             return
         self.is_open = False
         _OPEN_TRANSPORTS.discard(self)
-        self._closing.set()
-        self._undeclare()
-        if self._reader is not None:
-            self._reader.join(READER_JOIN_TIMEOUT_S)
-            self._reader = None
+        self._undeclare()  # ends a recv() blocked in another thread
+        if self._waker is not None:
+            self._waker.close()
+            self._waker = None
         release_session(self.settings)
         self._session = None
-        _drain(self._inbox)
 
     def send(self, frame: bytes) -> bool:
         if not self.is_open or self._publisher is None:
@@ -142,17 +229,50 @@ class ZenohTransport(Transport):
         return True
 
     def receive(self, timeout_s: float = 0.0) -> list[bytes]:
-        if not self.is_open:
+        handler, waker = self._handler, self._waker
+        if not self.is_open or handler is None:
             return []
-        frames = _drain(self._inbox)
+        frames = self._drain(handler)
         if not frames and timeout_s > 0:
-            try:
-                frames.append(self._inbox.get(timeout=timeout_s))
-            except queue.Empty:
-                return []
-            frames.extend(_drain(self._inbox))
+            frames = self._wait_for_frames(handler, waker, timeout_s)
         self.stats.chunks_received += len(frames)
         self.stats.bytes_received += sum(len(frame) for frame in frames)
+        return frames
+
+    def _wait_for_frames(self, handler, waker: _Waker, timeout_s: float) -> list[bytes]:
+        """Block in the FIFO's recv() until a frame comes or the waker ends the wait at its deadline."""
+        if not self._receiving.acquire(timeout=timeout_s):
+            return self._drain(handler)  # another thread waited meanwhile
+        try:
+            token = waker.arm(timeout_s)
+            try:
+                while True:
+                    sample = handler.recv()
+                    if sample.kind == _PUT:
+                        break
+                    attachment = sample.attachment
+                    if attachment is not None and attachment.to_bytes() == token:
+                        return []
+            finally:
+                waker.disarm()
+        except zenoh.ZError:  # closed meanwhile: the subscriber (or its session) is gone
+            return []
+        finally:
+            self._receiving.release()
+        return [sample.payload.to_bytes(), *self._drain(handler)]
+
+    def _drain(self, handler) -> list[bytes]:
+        """The frames already in the FIFO (at most its capacity, so a flood cannot hold us here)."""
+        frames = []
+        try:
+            for _ in range(self.capacity):
+                sample = handler.try_recv()
+                if sample is None:
+                    break
+                if sample.kind == _PUT:
+                    frames.append(sample.payload.to_bytes())
+        except zenoh.ZError:  # closed from another thread meanwhile
+            pass
         return frames
 
     def has_subscribers(self) -> bool:
@@ -173,21 +293,6 @@ class ZenohTransport(Transport):
     def describe(self) -> str:
         return f"zenoh:{self.address} ({self.settings.describe()}) tx={self.tx} rx={self.rx}"
 
-    def _read_samples(self, handler) -> None:
-        """Reader thread: FIFO channel -> our queue, until the subscriber is undeclared."""
-        while True:
-            try:
-                sample = handler.recv()
-            except zenoh.ZError:  # channel closed: subscriber undeclared or session closed
-                return
-            frame = sample.payload.to_bytes()
-            while not self._closing.is_set():
-                try:
-                    self._inbox.put(frame, timeout=FULL_QUEUE_RETRY_S)
-                    break
-                except queue.Full:
-                    continue  # the consumer is behind: hold the FIFO, which slows the sender
-
     def _undeclare(self) -> None:
         for entity in (self._subscriber, self._publisher):
             if entity is not None:
@@ -197,6 +302,7 @@ class ZenohTransport(Transport):
                     pass  # already gone with its session
         self._subscriber = None
         self._publisher = None
+        self._handler = None
 
 
 def _key(key: str, role: str) -> zenoh.KeyExpr:
@@ -207,17 +313,8 @@ def _key(key: str, role: str) -> zenoh.KeyExpr:
         raise UserError(f"zenoh {role} key '{key}' is not a valid key expression ({reason})") from None
 
 
-def _drain(inbox: queue.Queue) -> list[bytes]:
-    frames = []
-    while True:
-        try:
-            frames.append(inbox.get_nowait())
-        except queue.Empty:
-            return frames
-
-
 def _close_open_transports() -> None:
-    # Reader threads blocked inside zenoh must end before the interpreter does, or it aborts.
+    # A thread blocked in a FIFO's recv() or a waker must end before the interpreter does, or it aborts.
     for transport in list(_OPEN_TRANSPORTS):
         transport.close()
 

@@ -354,3 +354,20 @@ def test_bad_parameter_file_gives_one_line_config_error(tmp_path):
         load_eskf_params(broken)
     assert str(broken) in str(err.value) and "gating.chi2_probability" in str(err.value)
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("imu_latency_s", [0.023, 0.05])
+def test_downlink_slower_than_mocap_keeps_every_good_frame(imu_latency_s):
+    """A radio of 20-50 ms behind a 5 ms Vicon: mocap frames arrive before the IMU samples of their time.
+
+    They must wait for the IMU stream and be gated on it then, not rejected as outliers.
+    """
+    faults = LinkFaults(imu_latency_s=imu_latency_s, mocap_outlier_probability=0.0)
+    run = simulate(Flight(duration_s=10.0), VEHICLE.imu, ROOM, np.random.default_rng(71), faults)
+    kf, estimates, _ = fly(run)
+    pos_rms, vel_rms = rms_errors(run, estimates, CRUISE_FROM_S)
+    health = kf.health()
+    sent = sum(1 for _, m in run.events if not isinstance(m, ImuSample))
+    assert health.rejected_outliers == 0 and health.reinitialisations == 0
+    assert health.accepted_mocap >= sent - 2  # at most the frames newer than the last IMU sample wait
+    assert pos_rms <= 0.003 and vel_rms <= 0.02
