@@ -17,6 +17,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -128,6 +129,17 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _die_with_parent() -> None:
+    """In the child: ask Linux to SIGTERM it when the ground station dies, however it dies."""
+    try:
+        import ctypes
+        import signal as _signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, _signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):  # not Linux: the child is stopped by stop() as usual
+        pass
+
+
 class EmulatorChild:
     """`cfstack emulator` as a child process on a private loopback zenoh endpoint."""
 
@@ -142,25 +154,32 @@ class EmulatorChild:
         if airborne:
             cmd += ["--airborne"]
         cmd += getattr(args, "emulator_extra", [])
-        self.stderr_path = None
+        # stderr to a file, not a pipe: a pipe nobody reads during the flight could fill and stall the child
+        self.stderr = tempfile.TemporaryFile(mode="w+")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True, env=os.environ.copy())
+                                     stderr=self.stderr, text=True, env=os.environ.copy(),
+                                     preexec_fn=_die_with_parent)
+
+    def _stderr_lines(self) -> list[str]:
+        self.stderr.seek(0)
+        return self.stderr.read().strip().splitlines()
 
     def check_started(self) -> None:
         time.sleep(0.05)
         if self.proc.poll() is not None:
-            err = (self.proc.stderr.read() or "").strip().splitlines()
+            err = self._stderr_lines()
             raise UserError(err[-1] if err else "the emulator child exited at start")
 
     def stop(self) -> str:
         if self.proc.poll() is None:
             self.proc.terminate()
         try:
-            _, err = self.proc.communicate(timeout=10)
+            self.proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             self.proc.kill()
-            _, err = self.proc.communicate()
-        lines = (err or "").strip().splitlines()
+            self.proc.wait()
+        lines = self._stderr_lines()
+        self.stderr.close()
         return lines[-1] if lines else ""
 
 

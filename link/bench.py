@@ -29,6 +29,7 @@ stop repeated over lossy UDP cannot end a later phase.
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
 import math
 import os
@@ -68,8 +69,11 @@ QUICK = {"count": 100, "frames": 3000, "blocks": 2, "codec_calls": 200}
 WARMUP_ROUND_TRIPS = 30  # per block, not recorded: first samples after a phase switch are slow
 
 BENCH_VEHICLE_ID = 1  # MAVLink system id of the echo side (the ground station is GROUND_STATION_SYSTEM_ID)
-PATHS = ("zenoh-bare", "zenoh-link", "udp-bare", "udp-link")
-LABELS = {"zenoh-bare": "zenoh bare", "zenoh-link": "zenoh link", "udp-bare": "udp bare", "udp-link": "udp link"}
+# Per medium: bare (no cfstack code), transport (our transport moving the same bytes, no codec), link
+# (Endpoint: codec + transport + statistics). The middle row tells the transport's cost from the codec's.
+MEDIA = ("zenoh", "udp")
+LAYERS = ("bare", "transport", "link")
+PATHS = tuple(f"{medium}-{layer}" for medium in MEDIA for layer in LAYERS)
 STOP_PREFIX = b"stop "
 
 READY_TIMEOUT_S = 30.0  # child start: imports, zenoh session, subscriber matching
@@ -197,60 +201,98 @@ class BareUdp:
         self.sock.close()
 
 
-@dataclass
-class Side:
-    """One end's four paths."""
+class TransportPipe:
+    """Bytes over one of our transports, no codec; recv() raises TimeoutError after `timeout_s`."""
 
-    zenoh_bare: BareZenoh
-    zenoh_link: Endpoint
-    udp_bare: BareUdp
-    udp_link: Endpoint
-    session_settings: ZenohSettings
+    def __init__(self, transport, timeout_s: float):
+        self.transport = transport
+        self.timeout_s = timeout_s
+        self._pending: collections.deque[bytes] = collections.deque()
 
-    def path(self, name: str):
-        return {"zenoh-bare": self.zenoh_bare, "zenoh-link": self.zenoh_link,
-                "udp-bare": self.udp_bare, "udp-link": self.udp_link}[name]
+    def send(self, payload: bytes) -> None:
+        self.transport.send(payload)
+
+    def recv(self) -> bytes:
+        while not self._pending:
+            frames = self.transport.receive(self.timeout_s)
+            if not frames:
+                raise TimeoutError(f"nothing on {self.transport.describe()} within {self.timeout_s} s")
+            self._pending.extend(frames)
+        return self._pending.popleft()
+
+    def guard(self, limit_s: float):
+        return contextlib.nullcontext()  # every recv has its own timeout
 
     def close(self) -> None:
-        for pipe in (self.zenoh_link, self.udp_link, self.zenoh_bare, self.udp_bare):
+        self.transport.close()
+
+
+@dataclass
+class Side:
+    """One end's pipe of every path (BareZenoh, BareUdp, TransportPipe or Endpoint) on its session."""
+
+    pipes: dict[str, object]
+    session_settings: ZenohSettings
+
+    def udp_ports(self) -> list[int]:
+        """The local UDP ports of the udp paths, in PATHS order (the echo side tells the parent)."""
+        ports = []
+        for path in PATHS:
+            pipe = self.pipes[path]
+            if isinstance(pipe, BareUdp):
+                ports.append(pipe.port)
+            elif path.startswith("udp"):
+                transport = pipe.transport
+                ports.append(transport.local_address[1])
+        return ports
+
+    def close(self) -> None:
+        for pipe in self.pipes.values():
             pipe.close()
         release_session(self.session_settings)
 
 
-def _keys(prefix: str) -> dict[str, str]:
-    return {name: f"{prefix}/{name}" for name in ("link/up", "link/down", "bare/up", "bare/down")}
-
-
-def _open_side(settings: ZenohSettings, prefix: str, ground: bool, udp_ports: tuple[int, int] | None) -> Side:
-    """The ground (parent) side sends on .../up; the vehicle (echo) side on .../down. The vehicle side
-    binds its UDP ports (udp_ports None); the ground side sends to them."""
-    keys = _keys(prefix)
+def _open_side(settings: ZenohSettings, prefix: str, ground: bool, udp_ports: list[int] | None) -> Side:
+    """The ground (parent) side sends on PREFIX/PATH/up and receives on .../down; the vehicle (echo)
+    side the other way round. The vehicle side binds its UDP ports (udp_ports None); the ground side
+    sends to them, one port per udp path in PATHS order."""
     tx, rx = ("up", "down") if ground else ("down", "up")
-    session = acquire_session(settings)
-    options = {"listen": list(settings.listen or ())}
-    address = ",".join(settings.connect)
-    zenoh_transport = open_transport(f"zenoh:{address}", tx=keys[f"link/{tx}"], rx=keys[f"link/{rx}"], **options)
-    if udp_ports is None:
-        udp_transport = open_transport("udpin:127.0.0.1:0")
-        udp_bare = BareUdp()
-    else:
-        udp_transport = open_transport(f"udpout:127.0.0.1:{udp_ports[0]}")
-        udp_bare = BareUdp(("127.0.0.1", udp_ports[1]))
+    timeout_s = REPLY_TIMEOUT_S if ground else PHASE_IDLE_LIMIT_S
     system_id = GROUND_STATION_SYSTEM_ID if ground else BENCH_VEHICLE_ID
     limits = _limits()
-
-    def endpoint(transport) -> Endpoint:
-        return Endpoint(transport, Codec(system_id, limits=limits), clock=time.monotonic)
-
-    return Side(BareZenoh(session, keys[f"bare/{tx}"], keys[f"bare/{rx}"]), endpoint(zenoh_transport),
-                udp_bare, endpoint(udp_transport), settings)
+    session = acquire_session(settings)
+    zenoh_address = "zenoh:" + ",".join(settings.connect)
+    ports = iter(udp_ports or ())
+    pipes: dict[str, object] = {}
+    for path in PATHS:
+        medium, layer = path.split("-")
+        if medium == "zenoh" and layer == "bare":
+            pipes[path] = BareZenoh(session, f"{prefix}/{path}/{tx}", f"{prefix}/{path}/{rx}")
+            continue
+        if medium == "udp" and layer == "bare":
+            pipes[path] = BareUdp(("127.0.0.1", next(ports)) if ground else None)
+            continue
+        if medium == "zenoh":
+            transport = open_transport(zenoh_address, tx=f"{prefix}/{path}/{tx}", rx=f"{prefix}/{path}/{rx}",
+                                       listen=list(settings.listen or ()))
+        else:
+            transport = open_transport(f"udpout:127.0.0.1:{next(ports)}" if ground else "udpin:127.0.0.1:0")
+        if layer == "transport":
+            pipes[path] = TransportPipe(transport, timeout_s)
+        else:
+            pipes[path] = Endpoint(transport, Codec(system_id, limits=limits), clock=time.monotonic)
+    return Side(pipes, settings)
 
 
 def _wait_for_matching(side: Side) -> None:
-    zenoh_link = side.zenoh_link.transport
-    if not (zenoh_link.wait_for_subscribers(MATCHING_TIMEOUT_S)
-            and side.zenoh_bare.wait_for_subscribers(MATCHING_TIMEOUT_S)):
-        raise UserError(f"link-bench: the other process did not subscribe within {MATCHING_TIMEOUT_S:.0f} s")
+    for path in PATHS:
+        pipe = side.pipes[path]
+        if not path.startswith("zenoh"):
+            continue
+        subscribed = pipe if isinstance(pipe, BareZenoh) else pipe.transport
+        if not subscribed.wait_for_subscribers(MATCHING_TIMEOUT_S):
+            raise UserError(f"link-bench: the other process did not subscribe to {path} "
+                            f"within {MATCHING_TIMEOUT_S:.0f} s")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -331,9 +373,9 @@ def _sink_link(endpoint: Endpoint, phase: int, expected: int) -> str:
 
 def _run_phase(side: Side, words: list[str]) -> str:
     mode, path, phase, *numbers = words
-    pipe, phase, numbers = side.path(path), int(phase), [int(number) for number in numbers]
+    pipe, phase, numbers = side.pipes[path], int(phase), [int(number) for number in numbers]
     print("go", flush=True)
-    bare = path.endswith("bare")
+    bare = not path.endswith("link")  # bytes, not messages
     if mode == "echo":
         return _echo_bare(pipe, phase, *numbers) if bare else _echo_link(pipe, phase)
     return _sink_bare(pipe, phase, *numbers) if bare else _sink_link(pipe, phase, *numbers)
@@ -345,7 +387,7 @@ def serve_echo(zenoh_endpoint: str, prefix: str) -> int:
     _exit_with_parent()
     side = _open_side(ZenohSettings.from_options(zenoh_endpoint, listen=[]), prefix, ground=False, udp_ports=None)
     try:
-        print(f"ready {side.udp_link.transport.local_address[1]} {side.udp_bare.port}", flush=True)
+        print("ready " + " ".join(map(str, side.udp_ports())), flush=True)
         _wait_for_matching(side)  # the parent opens its side once it has read our UDP ports
         while True:
             words = sys.stdin.readline().split()
@@ -469,8 +511,9 @@ class BenchReport:
     codec_us: dict[bool, dict[str, tuple[float, float]]]  # signing -> type -> (encode, decode)
     setup: str = ""
 
-    def ratio(self, transport: str) -> float:
-        return self.round_trips[f"{transport}-link"].p50_us / self.round_trips[f"{transport}-bare"].p50_us
+    def ratio(self, medium: str, layer: str = "link") -> float:
+        """p50 round trip of `medium`'s `layer` over its bare p50."""
+        return self.round_trips[f"{medium}-{layer}"].p50_us / self.round_trips[f"{medium}-bare"].p50_us
 
 
 class _LinkDriver:
@@ -563,12 +606,8 @@ def _throughput(child: _Child, driver, path: str, items: list) -> Throughput:
 
 
 def _drivers(side: Side, request_bytes: int, reply_bytes: int) -> dict[str, object]:
-    return {
-        "zenoh-bare": _BareDriver(side.zenoh_bare, request_bytes, reply_bytes),
-        "zenoh-link": _LinkDriver(side.zenoh_link),
-        "udp-bare": _BareDriver(side.udp_bare, request_bytes, reply_bytes),
-        "udp-link": _LinkDriver(side.udp_link),
-    }
+    return {path: _LinkDriver(pipe) if path.endswith("link") else _BareDriver(pipe, request_bytes, reply_bytes)
+            for path, pipe in side.pipes.items()}
 
 
 def _frame_sizes() -> tuple[int, int]:
@@ -592,8 +631,8 @@ def run_bench(count: int = DEFAULT_COUNT, frames: int = DEFAULT_FRAMES, blocks: 
     child = _Child(endpoint, prefix)
     side = None
     try:
-        udp_link_port, udp_bare_port = map(int, child.expect("ready", READY_TIMEOUT_S))
-        side = _open_side(settings, prefix, ground=True, udp_ports=(udp_link_port, udp_bare_port))
+        udp_ports = [int(port) for port in child.expect("ready", READY_TIMEOUT_S)]
+        side = _open_side(settings, prefix, ground=True, udp_ports=udp_ports)
         _wait_for_matching(side)
         report = BenchReport(request_bytes, reply_bytes, count, frames, blocks,
                              {path: RoundTrips(path) for path in PATHS}, {}, {},
@@ -618,7 +657,7 @@ def _measure_round_trips(child: _Child, side: Side, report: BenchReport, progres
             result = report.round_trips[path]
             _round_trip_block(child, drivers[path], path, per_block, result,
                               report.request_bytes, report.reply_bytes)
-            progress(f"round trips, block {block + 1}/{report.blocks}, {LABELS[path]}: "
+            progress(f"round trips, block {block + 1}/{report.blocks}, {_label(path)}: "
                      f"p50 so far {result.p50_us:.0f} us")
 
 
@@ -627,10 +666,10 @@ def _measure_throughput(child: _Child, side: Side, report: BenchReport, progress
     imu_frames = _imu_stream(report.frames)
     payloads = [bytes(report.reply_bytes)] * report.frames
     for path in PATHS:
-        items = payloads if path.endswith("bare") else imu_frames
+        items = imu_frames if path.endswith("link") else payloads
         result = _throughput(child, drivers[path], path, items)
         report.throughput[path] = result
-        progress(f"throughput, {LABELS[path]}: {result.received_fps:,.0f} frames/s "
+        progress(f"throughput, {_label(path)}: {result.received_fps:,.0f} frames/s "
                  f"({result.frames_received}/{result.frames_sent} received)")
 
 
@@ -642,39 +681,57 @@ def verdict(passed: bool) -> str:
     return "PASS" if passed else "MISS"
 
 
+def _label(path: str) -> str:
+    return path.replace("-", " ")
+
+
 def format_report(report: BenchReport) -> str:
+    header = (f"cfstack link-bench: {report.setup}; python {platform.python_version()}, "
+              f"zenoh {_zenoh_version()}")
+    sections = [header, _round_trip_table(report), _throughput_table(report), _codec_table(report)]
+    return "\n\n".join(sections)
+
+
+def _round_trip_table(report: BenchReport) -> str:
     lines = [
-        f"cfstack link-bench: {report.setup}; python {platform.python_version()}, "
-        f"zenoh {_zenoh_version()}",
-        "",
-        f"Round trip: ThrustMoment out ({report.request_bytes} B), ImuSample back ({report.reply_bytes} B); "
-        f"bare paths move the same bytes. {report.count} per path in {report.blocks} interleaved blocks.",
-        f"  {'path':<12}{'p50 us':>10}{'p99 us':>10}{'samples':>9}{'lost':>6}",
+        f"Round trip: ThrustMoment frame out ({report.request_bytes} B), ImuSample frame back "
+        f"({report.reply_bytes} B); bare and transport rows move the same bytes without the codec. "
+        f"{report.count} per path, {report.blocks} interleaved blocks.",
+        f"  {'path':<16}{'p50 us':>9}{'p99 us':>9}{'p50/bare':>10}{'samples':>9}{'lost':>6}",
     ]
     for path in PATHS:
         trips = report.round_trips[path]
-        lines.append(f"  {LABELS[path]:<12}{trips.p50_us:>10.0f}{trips.p99_us:>10.0f}"
-                     f"{len(trips.samples_s):>9}{trips.lost:>6}")
-    zenoh_ratio, udp_ratio = report.ratio("zenoh"), report.ratio("udp")
+        medium, layer = path.split("-")
+        lines.append(f"  {_label(path):<16}{trips.p50_us:>9.0f}{trips.p99_us:>9.0f}"
+                     f"{report.ratio(medium, layer):>10.2f}{len(trips.samples_s):>9}{trips.lost:>6}")
+    zenoh_ratio = report.ratio("zenoh")
     lines += [
-        f"  zenoh link / bare p50: {zenoh_ratio:.2f}   target <= {ROUND_TRIP_RATIO_TARGET:.2f}   "
+        f"  zenoh link p50 / zenoh bare p50 = {zenoh_ratio:.2f}   target <= {ROUND_TRIP_RATIO_TARGET:.2f}   "
         f"{verdict(zenoh_ratio <= ROUND_TRIP_RATIO_TARGET)}",
-        f"  udp link / bare p50:   {udp_ratio:.2f}   (no target)",
-        "",
-        f"Throughput one way: {report.frames} ImuSample frames (bare: as many {report.reply_bytes} B payloads), "
-        "received / (last arrival - first send).",
-        f"  {'path':<12}{'frames/s':>11}{'sent/s':>11}{'received':>10}{'lost':>7}",
+        f"  udp link p50 / udp bare p50 = {report.ratio('udp'):.2f}   (no target)",
+    ]
+    return "\n".join(lines)
+
+
+def _throughput_table(report: BenchReport) -> str:
+    lines = [
+        f"Throughput one way: {report.frames} ImuSample frames sent back to back (bare and transport rows: "
+        f"as many {report.reply_bytes} B payloads); frames/s = received / (last arrival - first send).",
+        f"  {'path':<16}{'frames/s':>11}{'sent/s':>11}{'received':>10}{'lost':>7}",
     ]
     for path in PATHS:
         result = report.throughput[path]
-        lines.append(f"  {LABELS[path]:<12}{result.received_fps:>11,.0f}{result.sent_fps:>11,.0f}"
+        lines.append(f"  {_label(path):<16}{result.received_fps:>11,.0f}{result.sent_fps:>11,.0f}"
                      f"{result.frames_received:>10}{result.frames_sent - result.frames_received:>7}")
     zenoh_fps = report.throughput["zenoh-link"].received_fps
-    lines += [
-        f"  zenoh link: {zenoh_fps:,.0f} frames/s   target >= {THROUGHPUT_TARGET_FPS:,.0f}   "
-        f"{verdict(zenoh_fps >= THROUGHPUT_TARGET_FPS)}",
-        "",
-        "Codec cost per message (median us; decode = FrameParser.feed of one datagram)",
+    lines.append(f"  zenoh link: {zenoh_fps:,.0f} frames/s   target >= {THROUGHPUT_TARGET_FPS:,.0f}   "
+                 f"{verdict(zenoh_fps >= THROUGHPUT_TARGET_FPS)}")
+    return "\n".join(lines)
+
+
+def _codec_table(report: BenchReport) -> str:
+    lines = [
+        "Codec cost per message, median us (encode = Codec.encode; decode = FrameParser.feed of one datagram)",
         f"  {'message':<16}{'encode':>8}{'decode':>8}{'signed enc':>12}{'signed dec':>12}",
     ]
     plain, signed = report.codec_us[False], report.codec_us[True]

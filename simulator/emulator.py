@@ -60,7 +60,10 @@ REALTIME_MAX_SLEEP_S = 0.05  # the realtime loop never sleeps longer than this (
 # A step may run ahead only if it starts this much before the earliest possible uplink delivery, so
 # float rounding of t_k + L can never let a step start at the exact instant a frame becomes due.
 LOOKAHEAD_MARGIN_S = 1e-9
-MAX_VEHICLES = 250  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
+MAX_VEHICLES = 250
+import os
+PROGRESSIVE = os.environ.get("EMU_PROG") == "1"
+TICK_FIRST = os.environ.get("EMU_TICKFIRST") == "1"  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
 
 DOWNLINK, MOCAP, TRUTH = 0, 1, 2  # outbox channels, in ClockTick count order
 CHANNEL_NAMES = ("downlink", "mocap", "truth")
@@ -301,6 +304,7 @@ class Emulator:
         self.stopped = False
         self.wall_start = time.monotonic()
         self.wait_log_period_s = WAIT_LOG_PERIOD_S
+        self.first_tick_wall: float | None = None  # monotonic time of tick 0 (lockstep), for rates
         self.timing_s: dict[str, float] = defaultdict(float)  # transport parts, with config.profile
         # the run ends at the step boundary nearest the duration
         self.duration_steps = (None if config.duration_s is None
@@ -453,20 +457,26 @@ class Emulator:
     def publish_next_tick(self, lock: _Lockstep) -> None:
         """Step to the next tick time, publish the tick record, then the frames due by then."""
         n = self.next_tick_steps(min(lock.participants.values()))
-        self.flush(n)
         while self.steps < n and not self.stopped:
             self.step_all()
-            self.flush(n)
+            if PROGRESSIVE:
+                self.flush(n)
         n = min(n, self.steps)
         prof = self.config.profile
         t0 = time.perf_counter() if prof else 0.0
         self.tick += 1
         self.tick_steps = n
+        if self.first_tick_wall is None:
+            self.first_tick_wall = time.monotonic()
         time_ns = round(n * self.dt_s * NS_PER_S)
         lock.acked.clear()
+        if not TICK_FIRST:
+            self.flush(n)
         for node in self.nodes:
             if node.vehicle_id in lock.participants:
                 node.clock.send(node.tick_message(self.tick, time_ns).pack())
+        if TICK_FIRST:
+            self.flush(n)
         self._last_progress = time.monotonic()
         if prof:
             self.timing_s["send"] += time.perf_counter() - t0
@@ -483,10 +493,12 @@ class Emulator:
 
     # --- reports --------------------------------------------------------------------------------
     def summary(self) -> str:
-        wall = time.monotonic() - self.wall_start
+        now = time.monotonic()
+        wall = now - self.wall_start
         sim_s = self.tick_time_s if self.config.clock == "lockstep" else self.t_s
-        rtf = sim_s / wall if wall > 0 else 0.0
-        parts = [f"emulator: stopped at t={sim_s:.3f} s simulated ({wall:.1f} s wall, {rtf:.1f}x), "
+        running = now - (self.first_tick_wall or self.wall_start)  # lockstep: from the first tick
+        rtf = sim_s / running if running > 0 else 0.0
+        parts = [f"emulator: stopped at t={sim_s:.3f} s simulated ({wall:.1f} s wall, {rtf:.1f}x real time), "
                  f"{len(self.nodes)} vehicle(s), seed {self.config.seed}"]
         if self.config.clock == "lockstep":
             parts[0] += f", {self.tick + 1} ticks"

@@ -1,0 +1,272 @@
+"""Benchmark: the emulator in-process and over zenoh in lockstep, with and without lookahead.
+
+Takes in: --seconds of simulated flight per zenoh run, --inprocess-seconds, --vehicles (fleet size),
+--radio profile (default crazyradio), --repeats per zenoh configuration, --seed.
+Gives out (printed), in one run:
+  1. emulator only, in-process, no transport: one vehicle hovering on scripted ThrustMoment setpoints
+     (500 Hz), physics 1 kHz, firmware, IMU, mocap, truth, both radio channels, MAVLink encode/decode:
+     real-time factor and us per physics step, and where a step goes;
+  2. the same with --vehicles vehicles;
+  3. over zenoh (loopback TCP) in lockstep against a minimal scripted responder in a child process
+     (joins, waits for each tick's announced frames, sends one ThrustMoment, acks): 500 Hz and 100 Hz
+     control ticks, lookahead on and off (baseline = off, candidate = on, ratio printed), best of
+     --repeats; then where a tick's time goes (emulator: vehicle, radio, encode/decode, routing,
+     transport send / poll / wait; responder: waiting for the tick, for its frames, its own work).
+Targets (issue "The emulator"): >= 20x real time in-process for one vehicle; over zenoh lockstep
+>= 5x at 500 Hz and >= 20x at 100 Hz. This machine is shared (2 cores): figures move from run to run.
+
+Run: python benchmarks/emulator_bench.py [--seconds 4] [--repeats 3]
+The responder child is this file: python benchmarks/emulator_bench.py --responder ENDPOINT PERIOD_S SECONDS
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from link.clock import NS_PER_S, ClockAck, unpack_tick
+from link.codec import ActuatorLimits, Codec
+from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.messages import CommandKind, ThrustMoment, VehicleCommand
+from link.transports import open_transport
+from link.vehicle import load_mocap_room, load_vehicle
+from simulator.emulator import Emulator, EmulatorConfig
+from simulator.radio import load_radio_profile
+
+PHYSICS_RATE_HZ = 1000.0
+SETPOINT_RATE_HZ = 500.0  # in-process scripted setpoints
+HOVER_HEIGHT_M = 1.0
+TARGET_INPROCESS_RTF = 20.0
+TARGET_ZENOH_RTF = {500.0: 5.0, 100.0: 20.0}
+PREFIX = "cfbench"
+VEHICLE_PARTS = ("uplink", "firmware", "sensors", "physics", "outputs")
+EMULATOR_PARTS = ("radio", "encode", "decode", "route")
+TRANSPORT_PARTS = ("send", "poll", "wait")
+
+
+def make_config(radio: str, vehicles: int, seed: int, **changes) -> EmulatorConfig:
+    return EmulatorConfig(vehicle=load_vehicle("crazyflie"), mocap_room=load_mocap_room("vicon"),
+                          radio=load_radio_profile(radio), world=None, vehicles=vehicles, seed=seed,
+                          physics_rate_hz=PHYSICS_RATE_HZ, airborne=True,
+                          start_positions_enu_m=[(0.5 * i, 0.0, HOVER_HEIGHT_M) for i in range(vehicles)],
+                          prefix=PREFIX, **changes)
+
+
+# --- 1 and 2: in-process ------------------------------------------------------------------------------
+
+def fly_inprocess(radio: str, vehicles: int, seconds: float, seed: int, profile: bool) -> dict:
+    """Hover every vehicle on scripted ThrustMoment(weight) setpoints pushed into its uplink radio."""
+    emulator = Emulator(make_config(radio, vehicles, seed, profile=profile))
+    vehicle = emulator.config.vehicle
+    ground = Codec(GROUND_STATION_SYSTEM_ID, limits=ActuatorLimits.from_vehicle(vehicle))
+    every = round(PHYSICS_RATE_HZ / SETPOINT_RATE_HZ)
+    steps = round(seconds * PHYSICS_RATE_HZ)
+    published = 0
+    clock = time.perf_counter
+    script_s = 0.0
+    start = clock()
+    for n in range(steps):
+        if n % every == 0:
+            t0 = clock()
+            t = emulator.t_s
+            frames = [ground.encode(ThrustMoment(t, vehicle.weight_n, (0.0, 0.0, 0.0)), node.vehicle_id)
+                      for node in emulator.nodes]
+            script_s += clock() - t0
+            for node, frame in zip(emulator.nodes, frames, strict=True):
+                node.push_uplink([frame], t)
+        emulator.step_all()
+        for node in emulator.nodes:
+            published += len(node.take_due(emulator.steps))
+    wall = clock() - start - script_s  # the scripted ground station's encoding is not the emulator's
+    heights = [node.sim.truth.position_enu_m[2] for node in emulator.nodes]
+    return {"vehicle_steps": steps * vehicles, "seconds": seconds, "wall_s": wall, "rtf": seconds / wall,
+            "us_per_step": wall / (steps * vehicles) * 1e6, "published": published,
+            "timing": emulator.timing_report(), "crashes": sum(n.sim.crash is not None for n in emulator.nodes),
+            "height_error_m": max(abs(h - HOVER_HEIGHT_M) for h in heights),
+            "uplink_delivered": sum(n.uplink_radio.stats.delivered for n in emulator.nodes)}
+
+
+def report_inprocess(title: str, timed: dict, profiled: dict) -> None:
+    print(f"{title}: {timed['vehicle_steps']} vehicle-steps, {timed['published']} frames published, "
+          f"{timed['uplink_delivered']} setpoints delivered, crashes {timed['crashes']}, "
+          f"max |z - {HOVER_HEIGHT_M:g} m| {timed['height_error_m']:.2e} m")
+    print(f"  real-time factor {timed['rtf']:.1f}x ({timed['us_per_step']:.1f} us per vehicle physics step); "
+          f"ratio to the {TARGET_INPROCESS_RTF:.0f}x target (one vehicle): {timed['rtf'] / TARGET_INPROCESS_RTF:.2f}")
+    steps = profiled["vehicle_steps"]
+    parts = profiled["timing"]
+    total = sum(parts.values())
+    print(f"  where a step goes (profiled run, {total / steps * 1e6:.1f} us/step with accounting):")
+    for name in VEHICLE_PARTS + EMULATOR_PARTS:
+        if name in parts:
+            print(f"    {name:<9} {parts[name] / steps * 1e6:6.2f} us/step {100 * parts[name] / total:5.1f} %")
+
+
+# --- 3: over zenoh ----------------------------------------------------------------------------------
+
+def free_endpoint() -> str:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+
+
+def cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed: int, profile: bool) -> dict:
+    """The emulator here (listening), the responder as a child process; wall time from tick 0."""
+    endpoint = free_endpoint()
+    config = make_config(radio, 1, seed, lookahead=lookahead, profile=profile, duration_s=seconds,
+                         zenoh_options={"listen": [endpoint]})
+    emulator = Emulator(config)
+    with emulator:
+        child = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--responder", endpoint,
+                                  repr(period_s), repr(seconds)], stdout=subprocess.PIPE, text=True)
+        emulator.run()  # waits for the responder to join, returns at the duration
+        wall = time.monotonic() - emulator.first_tick_wall
+        out, _ = child.communicate(timeout=120)
+    responder = json.loads(out.strip().splitlines()[-1])
+    ticks = emulator.tick + 1
+    return {"rtf": emulator.tick_time_s / wall, "wall_s": wall, "ticks": ticks, "us_per_tick": wall / ticks * 1e6,
+            "lookahead_steps": emulator.lookahead_steps, "timing": emulator.timing_report(),
+            "responder": responder}
+
+
+def report_zenoh(radio: str, seconds: float, repeats: int, seed: int) -> None:
+    lookahead_s = load_radio_profile(radio).min_latency_s
+    print(f"over zenoh, lockstep, radio '{radio}' (uplink minimum latency = lookahead {lookahead_s * 1e3:.3f} ms), "
+          f"{seconds:g} s simulated per run, best of {repeats}:")
+    for rate_hz in (500.0, 100.0):
+        period_s = 1.0 / rate_hz
+        best = {}
+        for lookahead in (False, True):
+            runs = [fly_zenoh(radio, seconds, period_s, lookahead, seed, profile=False) for _ in range(repeats)]
+            rtfs = [r["rtf"] for r in runs]
+            best[lookahead] = max(runs, key=lambda r: r["rtf"])
+            r = best[lookahead]
+            print(f"  {rate_hz:3.0f} Hz tick, lookahead {'on ' if lookahead else 'off'}: {r['rtf']:5.1f}x real time "
+                  f"({r['us_per_tick']:.0f} us per tick, {r['ticks']} ticks, median of runs "
+                  f"{statistics.median(rtfs):.1f}x, {r['lookahead_steps']} steps run ahead)")
+        target = TARGET_ZENOH_RTF[rate_hz]
+        print(f"    lookahead on / off (candidate / baseline): {best[True]['rtf'] / best[False]['rtf']:.2f}; "
+              f"ratio to the {target:.0f}x target: {best[True]['rtf'] / target:.2f}")
+        profiled = fly_zenoh(radio, seconds, period_s, True, seed, profile=True)
+        report_tick_split(profiled)
+
+
+def report_tick_split(run: dict) -> None:
+    ticks = run["ticks"]
+    parts = run["timing"]
+    per_tick = {name: seconds / ticks * 1e6 for name, seconds in parts.items()}
+    accounted = sum(per_tick.values())
+    print(f"    where a tick goes (profiled run, {run['rtf']:.1f}x, {run['us_per_tick']:.0f} us/tick):")
+    groups = (("vehicle (physics, firmware, sensors)", VEHICLE_PARTS),
+              ("emulator radio, codec, routing", EMULATOR_PARTS),
+              ("transport (zenoh put, poll, blocked waiting)", TRANSPORT_PARTS))
+    for title, names in groups:
+        detail = ", ".join(f"{n} {per_tick.get(n, 0.0):.0f}" for n in names)
+        print(f"      {title:<46} {sum(per_tick.get(n, 0.0) for n in names):6.0f} us  ({detail})")
+    print(f"      {'unaccounted (loop, GIL, scheduling)':<46} {run['us_per_tick'] - accounted:6.0f} us")
+    r = run["responder"]
+    rt = r["ticks"]
+    print(f"      responder: waiting for the tick {r['tick_wait_s'] / rt * 1e6:.0f} us, for its frames "
+          f"{r['frames_wait_s'] / rt * 1e6:.0f} us, its own work {r['work_s'] / rt * 1e6:.0f} us "
+          f"(CPU {r['cpu_s'] / rt * 1e6:.0f} us/tick, {r['context_switches'] / rt:.1f} context switches/tick)")
+
+
+# --- the responder child ------------------------------------------------------------------------------
+
+def responder(endpoint: str, period_s: float, seconds: float) -> None:
+    """Join vehicle 1's lockstep; per tick: wait for the announced frames (blocking on the key still
+    short), send ARM (first tick) and a hover ThrustMoment, ack with wake-up = tick + period."""
+    opts = {"connect": [endpoint], "listen": []}
+    keys = VehicleKeys(PREFIX, 1)
+    vehicle = load_vehicle("crazyflie")
+    codec = Codec(GROUND_STATION_SYSTEM_ID, limits=ActuatorLimits.from_vehicle(vehicle))
+    sources = [open_transport("zenoh", rx=keys.downlink, **opts), open_transport("zenoh", rx=keys.mocap, **opts),
+               open_transport("zenoh", rx=keys.truth, **opts)]
+    uplink = open_transport("zenoh", tx=keys.uplink, **opts)
+    clock = open_transport("zenoh", tx=keys.clock_ack, rx=keys.clock, **opts)
+    clock.wait_for_subscribers(30.0)
+    uplink.wait_for_subscribers(30.0)
+    counts = [0, 0, 0]
+    period_ns = round(period_s * NS_PER_S)
+    waits = {"tick_wait_s": 0.0, "frames_wait_s": 0.0, "work_s": 0.0}
+    perf = time.perf_counter
+    clock.send(ClockAck(-1, 0, 0).pack())
+    ticks, last, cpu0, switches0 = 0, -1, 0.0, 0
+    while True:
+        t0 = perf()
+        tick = None
+        while tick is None:
+            for data in clock.receive(1.0):
+                candidate = unpack_tick(data)
+                if candidate is not None and candidate.tick > last:
+                    tick = candidate
+        t1 = perf()
+        want = (tick.downlink_published, tick.mocap_published, tick.truth_published)
+        while True:
+            for i, source in enumerate(sources):
+                counts[i] += len(source.receive(0.0))
+            short = next((i for i in range(3) if counts[i] < want[i]), None)
+            if short is None:
+                break
+            counts[short] += len(sources[short].receive(0.005))
+        t2 = perf()
+        if tick.tick == 0:
+            uplink.send(codec.encode(VehicleCommand(tick.time_s, CommandKind.ARM), 1))
+            cpu0 = cpu_s()
+            usage = resource.getrusage(resource.RUSAGE_SELF)
+            switches0 = usage.ru_nvcsw + usage.ru_nivcsw
+        uplink.send(codec.encode(ThrustMoment(tick.time_s, vehicle.weight_n, (0.0, 0.0, 0.0)), 1))
+        last = tick.tick
+        done = tick.time_s >= seconds - 1e-9
+        clock.send(ClockAck(tick.tick, uplink.stats.frames_sent, 0 if done else tick.time_ns + period_ns,
+                            leaving=done).pack())
+        t3 = perf()
+        if ticks > 0:
+            waits["tick_wait_s"] += t1 - t0
+            waits["frames_wait_s"] += t2 - t1
+            waits["work_s"] += t3 - t2
+        ticks += 1
+        if done:
+            break
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    print(json.dumps({"ticks": ticks, "cpu_s": cpu_s() - cpu0,
+                      "context_switches": usage.ru_nvcsw + usage.ru_nivcsw - switches0, **waits}), flush=True)
+    for transport in (*sources, uplink, clock):
+        transport.close()
+
+
+def main() -> None:
+    if len(sys.argv) > 1 and sys.argv[1] == "--responder":
+        responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
+        return
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per zenoh run")
+    parser.add_argument("--inprocess-seconds", type=float, default=10.0, help="simulated seconds, in-process")
+    parser.add_argument("--vehicles", type=int, default=10, help="fleet size of the second in-process run")
+    parser.add_argument("--radio", default="crazyradio", help="radio profile (name or TOML file)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per zenoh configuration (best is reported)")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+
+    for count in (1, args.vehicles):
+        seconds = args.inprocess_seconds if count == 1 else max(args.inprocess_seconds / count, 1.0)
+        timed = fly_inprocess(args.radio, count, seconds, args.seed, profile=False)
+        profiled = fly_inprocess(args.radio, count, seconds, args.seed, profile=True)
+        report_inprocess(f"in-process, {count} vehicle(s), radio '{args.radio}', {seconds:g} s simulated",
+                         timed, profiled)
+    report_zenoh(args.radio, args.seconds, args.repeats, args.seed)
+
+
+if __name__ == "__main__":
+    main()

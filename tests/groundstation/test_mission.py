@@ -1,0 +1,149 @@
+"""The mission state machine and its failsafes, driven tick by tick with made-up vehicle views.
+
+The thresholds come from groundstation/params/mission.toml (issue 4: mocap lost > 0.2 s -> hold,
+> 1 s -> descend and disarm; downlink silent 0.5 s -> stop commanding).
+"""
+
+import numpy as np
+
+from groundstation.mission import Mission, Phase, VehicleView, load_mission_params
+from groundstation.trajectories.basic import Circle, Line
+from link.messages import CommandKind
+
+P = load_mission_params()
+DT = 0.002
+
+
+def view(t, pos, armed=True, vel=(0.0, 0.0, 0.0), mocap_age=0.0, healthy=True, downlink_age=0.0, crashed=False):
+    return VehicleView(t_s=t, position_enu_m=np.array(pos, float), velocity_enu_mps=np.array(vel, float),
+                       armed=armed, crashed=crashed, mocap_age_s=mocap_age, estimator_healthy=healthy,
+                       downlink_age_s=downlink_age)
+
+
+def airborne_mission(track=None):
+    track = track or Line([0, 0, 1], [1, 0, 1], speed_mps=0.5)
+    m = Mission(P, track, lambda p: 0.0, track.sample(track.duration_s).position_m)
+    start = track.sample(0.0).position_m
+    t = 0.0
+    m.update(t, view(t, start, armed=False))  # connect -> arm
+    t += DT
+    step = m.update(t, view(t, start, armed=True))  # armed at the start point: settle
+    assert step.phase == Phase.SETTLE
+    return m, t
+
+
+def run_until(m, t, pos_fn, phase, limit_s=60.0, **kw):
+    while t < limit_s:
+        t += DT
+        step = m.update(t, view(t, pos_fn(t), **kw))
+        if step.phase == phase:
+            return step, t
+    raise AssertionError(f"never reached {phase}, stuck in {m.phase}")
+
+
+def test_arm_is_sent_and_repeated_until_the_vehicle_reports_armed():
+    track = Line([0, 0, 1], [1, 0, 1], speed_mps=0.5)
+    m = Mission(P, track, lambda p: 0.0, track.sample(track.duration_s).position_m)
+    assert m.update(0.0, None).phase == Phase.CONNECT  # nothing heard yet
+    commands = [m.update(t, view(t, [0, 0, 0], armed=False)).command for t in np.arange(0.002, 1.0, DT)]
+    arms = [c for c in commands if c == CommandKind.ARM]
+    assert 2 <= len(arms) <= 1.0 / 0.25 + 1  # re-sent (the uplink may lose it), but not every tick
+    step = m.update(1.0, view(1.0, [0, 0, 0], armed=True))
+    assert step.phase == Phase.TAKEOFF and step.reference is not None
+
+
+def test_nominal_mission_tracks_hovers_lands_and_disarms():
+    m, t = airborne_mission()
+    step, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    # follow the reference exactly, then sit at the goal
+    step, t = run_until(m, t, lambda t: m.track.sample(t - m.track_start_s).position_m, Phase.HOVER)
+    step, t = run_until(m, t, lambda t: [1, 0, 1], Phase.LAND)
+    assert m.result == "reached_goal"
+    assert m.reached_goal_s is not None and m.reached_goal_s >= m.track_start_s + m.arrival_s
+    # descend to the floor along the landing reference, then a disarm is commanded until disarmed
+    while True:
+        t += DT
+        ref = m.segment.sample(t - m.phase_start_s).position_m if m.phase == Phase.LAND else np.array([1, 0, 0])
+        step = m.update(t, view(t, ref))
+        if step.phase == Phase.DISARM:
+            break
+    assert step.command == CommandKind.DISARM and step.reference is None
+    t += DT
+    assert m.update(t, view(t, [1, 0, 0], armed=False)).phase == Phase.DONE
+
+
+def test_a_closed_trajectory_is_not_reached_at_its_start():
+    circle = Circle([0, -0.5, 1], 0.5, 0.5)
+    m, t = airborne_mission(circle)
+    start = circle.sample(0.0).position_m
+    run_until(m, t, lambda t: start, Phase.TRACK)
+    # the vehicle sits at the start (= goal) while the reference flies the circle: never "reached" early
+    assert m.arrival_s > 0.8 * circle.duration_s  # only the slow end of the spin-down is near the goal
+    t = m.track_start_s
+    while t < m.track_start_s + 0.5 * circle.duration_s:
+        t += DT
+        m.update(t, view(t, start))
+    assert m.reached_goal_s is None
+
+
+def test_mocap_loss_holds_then_descends_at_the_thresholds():
+    m, t = airborne_mission()
+    _, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    lost_at = t
+    hold_at = descend_at = None
+    while t < lost_at + 2.0:
+        t += DT
+        step = m.update(t, view(t, [0.1, 0, 1], mocap_age=t - lost_at))
+        if step.phase == Phase.FAILSAFE_HOLD and hold_at is None:
+            hold_at = t - lost_at
+            hold_ref = step.reference.position_m
+        if step.phase == Phase.FAILSAFE_DESCENT:
+            descend_at = t - lost_at
+            break
+    assert abs(hold_at - P.mocap_hold_after_s) <= 2 * DT
+    np.testing.assert_allclose(hold_ref, [0.1, 0, 1])  # hold where the estimate is
+    assert abs(descend_at - P.mocap_descend_after_s) <= 2 * DT
+    assert m.result == "failsafe" and "mocap" in m.failsafe_reason
+    assert step.reference.position_m[2] <= 1.0 and step.reference.velocity_mps[2] <= 0  # going down
+
+
+def test_mocap_back_before_one_second_resumes_the_plan():
+    m, t = airborne_mission()
+    _, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    lost_at = t
+    while t < lost_at + 0.5:
+        t += DT
+        m.update(t, view(t, [0, 0, 1], mocap_age=t - lost_at))
+    assert m.phase == Phase.FAILSAFE_HOLD
+    t += DT
+    assert m.update(t, view(t, [0, 0, 1], mocap_age=0.005)).phase == Phase.TRACK
+
+
+def test_unhealthy_estimator_descends_and_silent_downlink_stops_commanding():
+    m, t = airborne_mission()
+    t += DT
+    step = m.update(t, view(t, [0, 0, 1], healthy=False))
+    assert step.phase == Phase.FAILSAFE_DESCENT and m.failsafe_reason == "estimator unhealthy"
+
+    m, t = airborne_mission()
+    t += DT
+    step = m.update(t, view(t, [0, 0, 1], downlink_age=P.downlink_silent_after_s + DT))
+    assert step.phase == Phase.DONE and step.reference is None and step.command is None
+    assert m.result == "failsafe" and "downlink" in m.failsafe_reason
+
+
+def test_abort_lands_and_disarms_first():
+    m, t = airborne_mission()
+    _, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    m.request_abort()
+    t += DT
+    step = m.update(t, view(t, [0.2, 0, 1]))
+    assert step.phase == Phase.LAND and m.result == "aborted"
+    assert step.reference.position_m[2] <= 1.0
+
+
+def test_crash_report_ends_the_mission():
+    m, t = airborne_mission()
+    t += DT
+    assert m.update(t, view(t, [0, 0, 1], crashed=True)).phase == Phase.DONE
+    assert m.result == "crashed"
