@@ -130,14 +130,21 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
     with emulator:
         child = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--responder", endpoint,
                                   repr(period_s), repr(seconds)], stdout=subprocess.PIPE, text=True)
-        emulator.run()  # waits for the responder to join, returns at the duration
+        ready = child.stdout.readline()  # its transports are matched with ours: it joins right away
+        if ready.strip() != "ready":
+            child.kill()
+            raise RuntimeError(f"the responder did not start: {ready!r}")
+        cpu0, main0 = cpu_s(), time.thread_time()
+        emulator.run()  # returns at the duration
         wall = time.monotonic() - emulator.first_tick_wall
+        cpu, main_cpu = cpu_s() - cpu0, time.thread_time() - main0
         out, _ = child.communicate(timeout=120)
     responder = json.loads(out.strip().splitlines()[-1])
     ticks = emulator.tick + 1
     return {"rtf": emulator.tick_time_s / wall, "wall_s": wall, "ticks": ticks, "us_per_tick": wall / ticks * 1e6,
             "lookahead_steps": emulator.lookahead_steps, "timing": emulator.timing_report(),
-            "responder": responder}
+            "responder": responder, "cpu_us_per_tick": cpu / ticks * 1e6,
+            "main_cpu_us_per_tick": main_cpu / ticks * 1e6}
 
 
 def report_zenoh(radio: str, seconds: float, repeats: int, seed: int) -> None:
@@ -175,6 +182,8 @@ def report_tick_split(run: dict) -> None:
         detail = ", ".join(f"{n} {per_tick.get(n, 0.0):.0f}" for n in names)
         print(f"      {title:<46} {sum(per_tick.get(n, 0.0) for n in names):6.0f} us  ({detail})")
     print(f"      {'unaccounted (loop, GIL, scheduling)':<46} {run['us_per_tick'] - accounted:6.0f} us")
+    print(f"      emulator CPU {run['cpu_us_per_tick']:.0f} us/tick, of which its main thread "
+          f"{run['main_cpu_us_per_tick']:.0f} us (the rest: zenoh and receiving threads)")
     r = run["responder"]
     rt = r["ticks"]
     print(f"      responder: waiting for the tick {r['tick_wait_s'] / rt * 1e6:.0f} us, for its frames "
@@ -197,6 +206,7 @@ def responder(endpoint: str, period_s: float, seconds: float) -> None:
     clock = open_transport("zenoh", tx=keys.clock_ack, rx=keys.clock, **opts)
     clock.wait_for_subscribers(30.0)
     uplink.wait_for_subscribers(30.0)
+    print("ready", flush=True)
     counts = [0, 0, 0]
     period_ns = round(period_s * NS_PER_S)
     waits = {"tick_wait_s": 0.0, "frames_wait_s": 0.0, "work_s": 0.0}

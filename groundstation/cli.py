@@ -54,6 +54,12 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", type=int, default=1, help="vehicle id (MAVLink system id)")
     p.add_argument("--vehicle-model", default="crazyflie", help="vehicle parameters: name or TOML file")
     p.add_argument("--gains", default="gains", help="controller gains: name or TOML file")
+    p.add_argument("--latency-compensation", action=argparse.BooleanOptionalAction, default=False,
+                   help="predict the state to when each command will act (one-way latency from TIMESYNC), "
+                        "holding the commands already sent")
+    p.add_argument("--controller", choices=("report", "full"),
+                   help="SE(3) law: the lab report's (w_des = 0) or the full geometric controller with angular "
+                        "velocity/acceleration feed-forward (default: the gains file's variant)")
     p.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
     p.add_argument("-v", "--verbose", action="store_true")
     add_zenoh_arguments(p, mode_flag="--zenoh-mode")
@@ -90,7 +96,8 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
     return SessionOptions(
         track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
         connection="zenoh", zenoh_options=zopts, prefix=args.prefix, vehicle_id=args.vehicle,
-        vehicle_model=args.vehicle_model, gains=args.gains, log_dir=Path(args.log) if args.log else None,
+        vehicle_model=args.vehicle_model, gains=args.gains, controller_variant=args.controller,
+        latency_compensation=args.latency_compensation, log_dir=Path(args.log) if args.log else None,
         signing=signing_from_args(args), extra_summary=extra, plan=plan)
 
 

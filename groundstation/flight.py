@@ -11,14 +11,14 @@ The ground station never uses simulator truth for control: truth goes to the log
 from __future__ import annotations
 
 import logging
-import math
-from collections import deque
 import signal
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from estimator.eskf import POSITION, ErrorStateKF
+from groundstation.compensation import LatencyCompensator
 from groundstation.controller import ControllerState, SE3Controller
 from groundstation.flightlog import FlightLog
 from groundstation.mission import Mission, MissionParams, Phase, VehicleView
@@ -39,6 +39,10 @@ from link.stats import TimeSyncTracker
 
 log = logging.getLogger("cfstack.groundstation")
 NS = 1_000_000_000
+COMPENSATION_RTT_SAMPLES = 5  # median over the last few TIMESYNC round trips (2 Hz): robust to one late reply
+# Compensate only while flying a reference: on the ground and while arming the model has no floor contact.
+COMPENSATED_PHASES = (Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.HOVER, Phase.LAND, Phase.FAILSAFE_HOLD,
+                      Phase.FAILSAFE_DESCENT)
 TRUTH_HISTORY = 512  # truth samples kept to grade the estimate at its own time (~1 s at 500 Hz)
 
 
@@ -75,7 +79,8 @@ class FlightRecord:
 
 class FlightLoop:
     def __init__(self, link, clock, estimator: ErrorStateKF, controller: SE3Controller, mission: Mission,
-                 params: MissionParams, flight_log: FlightLog, mode: str, period_s: float):
+                 params: MissionParams, flight_log: FlightLog, mode: str, period_s: float,
+                 compensator: LatencyCompensator | None = None):
         self.link = link
         self.clock = clock
         self.estimator = estimator
@@ -85,6 +90,7 @@ class FlightLoop:
         self.log = flight_log
         self.mode = mode
         self.period_s = period_s
+        self.compensator = compensator
         self.health = LinkHealth()
         self.truth: TruthState | None = None
         self.record = FlightRecord()
@@ -167,11 +173,24 @@ class FlightLoop:
             self.link.send(self.timesync.request())
             self.next_timesync_s = now_s + self.p.timesync_period_s
 
+    def uplink_latency_s(self) -> float | None:
+        """One-way uplink latency: half the median of the recent TIMESYNC round trips."""
+        recent = self.health.rtt_s[-COMPENSATION_RTT_SAMPLES:]
+        return None if not recent else float(np.median(recent)) / 2.0
+
     def control(self, now_s: float, step) -> tuple:
         est = self.estimator.estimate()
-        state = ControllerState(position_enu_m=est.position_enu_m, velocity_enu_mps=est.velocity_enu_mps,
-                                attitude_wxyz=est.attitude_wxyz, rate_flu_radps=est.rate_flu_radps)
-        out = self.controller.update(state, step.reference)
+        reference = step.reference
+        latency = self.uplink_latency_s() if self.compensator is not None else None
+        if latency is not None and step.phase in COMPENSATED_PHASES:
+            state = self.compensator.predict(est, now_s, self.health.offset_s, latency)
+            reference = self.mission.reference_at(now_s + latency) or reference
+        else:
+            state = ControllerState(position_enu_m=est.position_enu_m, velocity_enu_mps=est.velocity_enu_mps,
+                                    attitude_wxyz=est.attitude_wxyz, rate_flu_radps=est.rate_flu_radps)
+        out = self.controller.update(state, reference)
+        if self.compensator is not None:
+            self.compensator.record(now_s, out.thrust_n, out.moment_flu_nm, out.attitude_des_wxyz)
         if self.mode == "moments":
             self.link.send(ThrustMoment(now_s, out.thrust_n, tuple(out.moment_flu_nm)))
         else:
@@ -246,13 +265,14 @@ class FlightLoop:
             attitude = tuple(out.attitude_des_wxyz)
         stats = self.link.radio.stats  # raw counters: a snapshot computes percentiles, too slow per tick
         rtt = self.health.rtt_s[-1] * 1e3 if self.health.rtt_s else None
-        tick_ms = self.clock.timer.work_s[-1] * 1e3 if (self.clock.kind == "realtime" and self.clock.timer.work_s) else math.nan
+        # wall-clock tick time only in realtime: a lockstep log must depend on the seed alone
+        realtime = self.clock.kind == "realtime" and self.clock.timer.work_s
+        tick_ms = self.clock.timer.work_s[-1] * 1e3 if realtime else None
         view_age = None if est is None else self.mocap_age(now, est)
         self.log.row(now, step.phase.value, truth_vals, est_vals, sigma, ref, moment, attitude,
                      None if out is None else bool(out.saturated), view_age,
                      None if est is None else est.healthy, stats.tx_frames,
-                     stats.rx_frames, stats.sequences.lost, rtt,
-                     0.0 if math.isnan(tick_ms) else tick_ms)
+                     stats.rx_frames, stats.sequences.lost, rtt, tick_ms)
         self.record.t.append(now)
         self.record.phase.append(step.phase.value)
         self.record.ref.append(None if step.reference is None else np.array(step.reference.position_m, float))
@@ -269,7 +289,8 @@ class FlightLoop:
         history = self.truth_history
         if not history or not history[0].time_s <= t_s <= history[-1].time_s:
             return None
-        for older, newer in zip(reversed(history), list(reversed(history))[1:]):  # newest first
+        newest_first = list(reversed(history))
+        for older, newer in zip(newest_first, newest_first[1:], strict=False):
             if newer.time_s <= t_s <= older.time_s:
                 span = older.time_s - newer.time_s
                 f = 0.0 if span <= 0 else (t_s - newer.time_s) / span

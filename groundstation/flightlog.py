@@ -62,7 +62,7 @@ class FlightLog:
 
     def row(self, t_s: float, phase: str, truth, estimate, sigma, reference, moment_cmd, attitude_cmd,
             saturated: bool | None, mocap_age_s: float | None, healthy: bool | None, uplink_sent: int,
-            downlink_received: int, downlink_lost: int, rtt_ms: float | None, tick_time_ms: float) -> None:
+            downlink_received: int, downlink_lost: int, rtt_ms: float | None, tick_time_ms: float | None) -> None:
         cells = [repr(float(t_s)), phase]
         cells += _cells(truth, 10) + _cells(estimate, 10) + _cells(sigma, 9) + _cells(reference, 6)
         cells += _cells(moment_cmd, 4) + _cells(attitude_cmd, 4)
@@ -70,7 +70,7 @@ class FlightLog:
         cells += ["" if mocap_age_s is None else repr(float(mocap_age_s))]
         cells += ["" if healthy is None else str(int(healthy))]
         cells += [str(uplink_sent), str(downlink_received), str(downlink_lost)]
-        cells += ["" if rtt_ms is None else repr(float(rtt_ms)), repr(float(tick_time_ms))]
+        cells += ["" if rtt_ms is None else repr(float(rtt_ms)), "" if tick_time_ms is None else repr(float(tick_time_ms))]
         self._states.write(",".join(cells) + "\n")
 
     def write_json(self, name: str, data: dict) -> None:

@@ -138,6 +138,12 @@ class Mission:
         target[2] = self.ground_height(target)
         return Line(view.position_enu_m, target, speed_mps=speed)
 
+    def reference_at(self, t: float) -> FlatOutput | None:
+        """The current phase's reference at another time t (latency compensation looks ahead)."""
+        if self.segment is None:
+            return None
+        return self.segment.sample(t - self.phase_start_s)
+
     @property
     def finished(self) -> bool:
         return self.phase == Phase.DONE

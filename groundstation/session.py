@@ -18,6 +18,7 @@ import numpy as np
 
 from estimator.eskf import ErrorStateKF
 from groundstation.clocks import LockstepClock, RealtimeClock
+from groundstation.compensation import LatencyCompensator
 from groundstation.controller import SE3Controller, load_gains
 from groundstation.flight import FlightLoop
 from groundstation.flightlog import FlightLog, default_log_dir
@@ -50,6 +51,8 @@ class SessionOptions:
     vehicle_model: str = "crazyflie"
     mocap_room: str = "vicon"
     gains: str = "gains"
+    controller_variant: str | None = None  # None: the gains file's
+    latency_compensation: bool = False
     log_dir: Path | None = None
     signing: object | None = None
     extra_summary: dict = field(default_factory=dict)
@@ -89,9 +92,11 @@ def run_session(opts: SessionOptions) -> SessionResult:
                 clock = RealtimeClock(period, link)
             clock_box["clock"] = clock
             estimator = ErrorStateKF(vehicle, load_mocap_room(opts.mocap_room))
-            controller = SE3Controller(vehicle, load_gains(opts.gains))
+            controller = SE3Controller(vehicle, load_gains(opts.gains), variant=opts.controller_variant)
             mission = Mission(params, opts.track, ground_height, opts.goal_enu_m)
-            loop = FlightLoop(link, clock, estimator, controller, mission, params, flight_log, opts.mode, period)
+            compensator = LatencyCompensator(vehicle, opts.mode, period) if opts.latency_compensation else None
+            loop = FlightLoop(link, clock, estimator, controller, mission, params, flight_log, opts.mode, period,
+                              compensator)
             loop.run()
         finally:
             link.close()
@@ -171,6 +176,7 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
             "rtt_ms_p99": float(np.percentile(rtts, 99)) if rtts.size else None,
         },
         "mode": opts.mode,
+        "latency_compensation": opts.latency_compensation,
         "clock": opts.clock,
         "failsafe_reason": loop.mission.failsafe_reason,
         "sim_time_s": float(t[-1]) if t.size else 0.0,
@@ -205,7 +211,8 @@ def human_summary(summary: dict) -> str:
     lines = [
         f"result: {summary['result']}" + (f" ({summary['failsafe_reason']})" if summary.get("failsafe_reason") else ""),
         f"flight time {fmt(summary['flight_time_s'], ' s', digits=2)}, tracking error rms "
-        f"{fmt(summary['rms_tracking_error_m'], ' mm', 1e3, 1)} max {fmt(summary['max_tracking_error_m'], ' mm', 1e3, 1)}, "
+        f"{fmt(summary['rms_tracking_error_m'], ' mm', 1e3, 1)} "
+        f"max {fmt(summary['max_tracking_error_m'], ' mm', 1e3, 1)}, "
         f"final error {fmt(summary['final_position_error_m'], ' mm', 1e3, 1)}, "
         f"min clearance {fmt(summary['min_clearance_m'], ' m')}",
         f"estimator rms error {fmt(summary['estimator']['rms_position_error_m'], ' mm', 1e3, 2)}, "

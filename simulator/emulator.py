@@ -23,8 +23,6 @@ stamped with the step count at which a non-lookahead emulator would have publish
 published with the first tick whose time reaches that stamp; tick k's view is therefore unchanged.
 Uplink frames of tick k are pushed into the radio at t_k, as without lookahead. The result is
 byte-identical with or without lookahead (tests/simulator/test_emulator*.py check it).
-Within a tick, the tick record goes out first and its frames right after: the ground station waits
-for the counts the record announces, so it can wake while the frames are still being published.
 """
 
 from __future__ import annotations
@@ -60,10 +58,7 @@ REALTIME_MAX_SLEEP_S = 0.05  # the realtime loop never sleeps longer than this (
 # A step may run ahead only if it starts this much before the earliest possible uplink delivery, so
 # float rounding of t_k + L can never let a step start at the exact instant a frame becomes due.
 LOOKAHEAD_MARGIN_S = 1e-9
-MAX_VEHICLES = 250
-import os
-PROGRESSIVE = os.environ.get("EMU_PROG") == "1"
-TICK_FIRST = os.environ.get("EMU_TICKFIRST") == "1"  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
+MAX_VEHICLES = 250  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
 
 DOWNLINK, MOCAP, TRUTH = 0, 1, 2  # outbox channels, in ClockTick count order
 CHANNEL_NAMES = ("downlink", "mocap", "truth")
@@ -455,28 +450,26 @@ class Emulator:
         return n
 
     def publish_next_tick(self, lock: _Lockstep) -> None:
-        """Step to the next tick time, publish the tick record, then the frames due by then."""
+        """Step to the next tick time, publish the frames due by then in one burst, then the tick
+        record. (One burst lets zenoh batch the samples into few writes, and the ground station finds
+        the frames already there when the record wakes it: measured fewer context switches per tick
+        than publishing frames step by step or the record first.)"""
         n = self.next_tick_steps(min(lock.participants.values()))
         while self.steps < n and not self.stopped:
             self.step_all()
-            if PROGRESSIVE:
-                self.flush(n)
         n = min(n, self.steps)
-        prof = self.config.profile
-        t0 = time.perf_counter() if prof else 0.0
         self.tick += 1
         self.tick_steps = n
         if self.first_tick_wall is None:
             self.first_tick_wall = time.monotonic()
         time_ns = round(n * self.dt_s * NS_PER_S)
         lock.acked.clear()
-        if not TICK_FIRST:
-            self.flush(n)
+        self.flush(n)
+        prof = self.config.profile
+        t0 = time.perf_counter() if prof else 0.0
         for node in self.nodes:
             if node.vehicle_id in lock.participants:
                 node.clock.send(node.tick_message(self.tick, time_ns).pack())
-        if TICK_FIRST:
-            self.flush(n)
         self._last_progress = time.monotonic()
         if prof:
             self.timing_s["send"] += time.perf_counter() - t0
