@@ -46,6 +46,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trajectory", help="hover|line|circle; with a world that has a start and goal: "
                    f"constant-speed|minsnap (default {DEFAULT_PLANNED}, planned from start to goal)")
     p.add_argument("--speed", type=float, help="planned speed, m/s (constant-speed: the speed; minsnap: the limit)")
+    p.add_argument("--planning", default="planning",
+                   help="planning parameters: a name (planning, planning_aggressive) or a TOML file")
+    p.add_argument("--accel", type=float, help="minsnap acceleration limit, m/s^2 (default: planning.toml; the "
+                   "thrust-to-weight limit applies on top)")
     p.add_argument("--resolution", type=float, nargs="+", metavar="R",
                    help="planning voxel size, m: one value or three (default: the world's, else planning.toml)")
     p.add_argument("--margin", type=float, help="planning clearance to blocks, m (default: the world's, else 0.2)")
@@ -76,7 +80,8 @@ def _track(args, world: World | None, start_airborne: bool):
     if world is not None and world.start is not None and world.goal is not None \
             and args.trajectory not in BUILTIN_TRAJECTORIES:
         planned = plan_track(world, args.trajectory or DEFAULT_PLANNED, load_vehicle(args.vehicle_model),
-                             speed_mps=args.speed, resolution=args.resolution, margin=args.margin)
+                             speed_mps=args.speed, resolution=args.resolution, margin=args.margin,
+                             accel_mps2=args.accel, planning=args.planning)
         return planned.trajectory, planned.goal_enu_m, planned.summary, planned.plan
     name = args.trajectory or "hover"
     floor = float(world.bounds[4]) if world is not None else 0.0

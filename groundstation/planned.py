@@ -40,8 +40,9 @@ class NoPathError(UserError):
     exit_code = 1
 
 
-def grid_settings(world: World, resolution: list[float] | None, margin: float | None) -> tuple[np.ndarray, float]:
-    grid = load_planning_params().table("grid")
+def grid_settings(world: World, resolution: list[float] | None, margin: float | None,
+                  params=None) -> tuple[np.ndarray, float]:
+    grid = (params or load_planning_params()).table("grid")
     if resolution is not None:
         res = np.broadcast_to(np.asarray(resolution, float), (3,)).copy()
         if len(resolution) not in (1, 3) or not np.all(res > 0):
@@ -60,15 +61,16 @@ def grid_settings(world: World, resolution: list[float] | None, margin: float | 
 
 
 def plan_track(world: World, kind: str, vehicle: Vehicle, speed_mps: float | None = None,
-               resolution: list[float] | None = None, margin: float | None = None) -> PlannedTrack:
+               resolution: list[float] | None = None, margin: float | None = None,
+               accel_mps2: float | None = None, planning: str = "planning") -> PlannedTrack:
     if world.start is None or world.goal is None:
         raise UserError(f"{world.source}: the world has no start and goal to plan between")
     if kind not in KINDS:
         raise UserError(f"--trajectory {kind}: with a world, one of {', '.join(KINDS)}")
     if speed_mps is not None and not speed_mps > 0:
         raise UserError(f"--speed: must be positive, got {speed_mps}")
-    res, m = grid_settings(world, resolution, margin)
-    params = load_planning_params()
+    params = load_planning_params(planning)
+    res, m = grid_settings(world, resolution, margin, params)
     t0 = time.perf_counter()
     result = plan_path(world, res, m, batch_width_voxels=params.table("grid").number("batch_width_voxels"))
     if not result.found:
@@ -85,6 +87,10 @@ def plan_track(world: World, kind: str, vehicle: Vehicle, speed_mps: float | Non
         settings = MinSnapSettings.from_params(params, vehicle)
         if speed_mps is not None:
             settings = dataclasses.replace(settings, max_speed_mps=speed_mps)
+        if accel_mps2 is not None:
+            if not accel_mps2 > 0:
+                raise UserError(f"--accel: must be positive, got {accel_mps2}")
+            settings = dataclasses.replace(settings, max_accel_mps2=accel_mps2)
         plan = plan_min_snap(result.path_m, world, m, settings)
         trajectory = plan.trajectory
         waypoints = trajectory.waypoints_m

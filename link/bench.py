@@ -4,13 +4,16 @@ Takes in: `--count N` round trips per path, `--frames N` frames per throughput r
 (interleaved blocks of round trips), `--quick` (a smoke-sized run); internally `--echo ENDPOINT PREFIX`
 runs the far end in a child process.
 Gives out: a table on stdout and progress lines on stderr; exit code 0 whatever the numbers (it is a
-benchmark, not a test: a missed target prints MISS, it does not fail):
-- round trip (p50, p99, microseconds) on loopback between this process and an echo child process:
-  a ThrustMoment frame out and an ImuSample frame back, through the full link (Endpoint: Codec.encode ->
-  transport -> FrameParser decode on both ends; the child decodes the command and answers with an
-  encoded IMU sample stamped with the command's time) over zenoh and over UDP; and as baselines bare
-  zenoh (a raw publisher and a FIFO subscriber read with a blocking recv, on the same zenoh session,
-  no codec) and a bare UDP socket, moving the same byte counts. Ratios full / bare of the p50s.
+benchmark, not a test: a missed target prints MISS, it does not fail). Three paths per medium (zenoh,
+UDP), all on loopback between this process and an echo child process:
+- bare: no cfstack code. zenoh: a raw publisher (RELIABLE, BLOCK, as the transport declares it) and a
+  FIFO subscriber read with a blocking recv(), on the same session the transports use. UDP: a socket.
+- transport: our transport (link.transports) moving the same bytes, no codec.
+- link: the full link, Endpoint on both ends: Codec.encode -> transport -> FrameParser decode (+ LinkStats).
+Measured:
+- round trip (p50, p99, microseconds) of a ThrustMoment frame out and an ImuSample frame back: the child
+  decodes the command and answers with an encoded IMU sample stamped with the command's time (bare and
+  transport paths move as many bytes without the codec); ratios of each p50 to its medium's bare p50.
 - one-way throughput (frames/s): the sender encodes and sends `--frames` ImuSample frames back to back,
   the child decodes and counts them; rate = frames received / (last arrival - first send). Both times
   are CLOCK_MONOTONIC (time.monotonic), which Linux shares between processes.
@@ -18,12 +21,12 @@ benchmark, not a test: a missed target prints MISS, it does not fail):
 Targets (issue "The link", section Numbers): the full zenoh link adds at most 50 % to the bare zenoh
 round trip (p50 ratio <= 1.5); full zenoh link throughput >= 20 000 frames/s.
 
-Method: the four round-trip paths run in interleaved blocks (zenoh bare, zenoh link, udp bare, udp link,
-then again), each block after a warm-up, so that load from other processes on a shared machine hits
-every path alike and the ratios stay meaningful. The child is driven through its stdin/stdout, one
-phase at a time ("echo PATH ..." / "sink PATH ..."); a phase ends in-band with a stop token carrying
-the phase number (bytes b"stop N" on bare paths, VehicleCommand(DISARM, time_s=N) on the link), so a
-stop repeated over lossy UDP cannot end a later phase.
+Method: the round-trip paths run in interleaved blocks (every path once per block), each block after a
+warm-up, so that load from other processes on a shared machine hits every path alike and the ratios
+stay meaningful; the p50 and p99 are over all blocks' samples. The child is driven through its
+stdin/stdout, one phase at a time ("echo PATH ..." / "sink PATH ..."); a phase ends in-band with a stop
+token carrying the phase number (bytes b"stop N" on byte paths, VehicleCommand(DISARM, time_s=N) on the
+link), so a stop repeated over lossy UDP cannot end a later phase.
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ from link.keys import DEFAULT_PREFIX, GROUND_STATION_SYSTEM_ID
 from link.messages import CommandKind, ImuSample, Message, ThrustMoment, VehicleCommand
 from link.transports import open_transport
 from link.transports.udp import DEFAULT_SOCKET_BUFFER_BYTES, MAX_DATAGRAM_BYTES
-from link.transports.zenoh_transport import DEFAULT_EXPRESS, DEFAULT_QUEUE_FRAMES
+from link.transports.zenoh_transport import DEFAULT_EXPRESS, DEFAULT_QUEUE_FRAMES, MATCHING_POLL_S
 from link.vehicle import load_vehicle
 from link.zenoh_session import ZenohSettings, acquire_session, release_session
 
@@ -63,7 +66,7 @@ THROUGHPUT_TARGET_FPS = 20_000.0  # full zenoh link, one way
 
 DEFAULT_COUNT = 2000  # round trips per path
 DEFAULT_FRAMES = 50_000  # frames per throughput run
-DEFAULT_BLOCKS = 4
+DEFAULT_BLOCKS = 8
 DEFAULT_CODEC_CALLS = 2000  # calls per message type and direction in measure_codec_costs
 QUICK = {"count": 100, "frames": 3000, "blocks": 2, "codec_calls": 200}
 WARMUP_ROUND_TRIPS = 30  # per block, not recorded: first samples after a phase switch are slow
@@ -142,7 +145,7 @@ class BareZenoh:
         while not self.publisher.matching_status.matching:
             if time.monotonic() >= deadline:
                 return False
-            time.sleep(0.005)
+            time.sleep(MATCHING_POLL_S)
         return True
 
     @contextlib.contextmanager
@@ -155,7 +158,7 @@ class BareZenoh:
         try:
             yield
         except zenoh.ZError:
-            raise UserError(f"link-bench: bare zenoh got no reply within {limit_s:.0f} s") from None
+            raise UserError(f"bare zenoh got no reply within {limit_s:.0f} s") from None
         finally:
             timer.cancel()
 
@@ -291,7 +294,7 @@ def _wait_for_matching(side: Side) -> None:
             continue
         subscribed = pipe if isinstance(pipe, BareZenoh) else pipe.transport
         if not subscribed.wait_for_subscribers(MATCHING_TIMEOUT_S):
-            raise UserError(f"link-bench: the other process did not subscribe to {path} "
+            raise UserError(f"the other process did not subscribe to {path} "
                             f"within {MATCHING_TIMEOUT_S:.0f} s")
 
 
@@ -382,7 +385,7 @@ def _run_phase(side: Side, words: list[str]) -> str:
 
 
 def serve_echo(zenoh_endpoint: str, prefix: str) -> int:
-    """The far end: connects to the parent's zenoh endpoint, binds two UDP ports, then runs the phases
+    """The far end: connects to the parent's zenoh endpoint, binds its UDP ports, then runs the phases
     its stdin names until "quit" (or its parent dies)."""
     _exit_with_parent()
     side = _open_side(ZenohSettings.from_options(zenoh_endpoint, listen=[]), prefix, ground=False, udp_ports=None)
@@ -425,7 +428,7 @@ class _Child:
             if readable:
                 chunk = os.read(self.process.stdout.fileno(), 4096)
                 if not chunk:
-                    raise UserError(f"link-bench: the echo process ended (exit code {self.process.wait()})")
+                    raise UserError(f"the echo process ended (exit code {self.process.wait()})")
                 self._buffer += chunk
         line, _, self._buffer = self._buffer.partition(b"\n")
         return line.decode()
@@ -433,7 +436,7 @@ class _Child:
     def expect(self, prefix: str, timeout_s: float) -> list[str]:
         line = self.read_line(timeout_s)
         if line is None or not line.startswith(prefix):
-            raise UserError(f"link-bench: the echo process said {line!r}, expected '{prefix} ...'")
+            raise UserError(f"the echo process said {line!r}, expected '{prefix} ...'")
         return line.split()[1:]
 
     def start_phase(self, mode: str, path: str, *numbers: int) -> int:
@@ -452,9 +455,9 @@ class _Child:
             line = self.read_line(STOP_RETRY_S)
             if line is not None:
                 if not line.startswith(prefix):
-                    raise UserError(f"link-bench: the echo process said {line!r}, expected '{prefix} ...'")
+                    raise UserError(f"the echo process said {line!r}, expected '{prefix} ...'")
                 return line.split()[1:]
-        raise UserError(f"link-bench: the echo process gave no result within {RESULT_TIMEOUT_S:.0f} s")
+        raise UserError(f"the echo process gave no result within {RESULT_TIMEOUT_S:.0f} s")
 
     def quit(self) -> None:
         with contextlib.suppress(OSError):
@@ -622,7 +625,10 @@ def _imu_stream(frames: int) -> list[ImuSample]:
 
 def run_bench(count: int = DEFAULT_COUNT, frames: int = DEFAULT_FRAMES, blocks: int = DEFAULT_BLOCKS,
               codec_calls: int = DEFAULT_CODEC_CALLS, progress: Callable[[str], None] = _progress) -> BenchReport:
-    """Measure everything (see the module docstring) with an echo child process; returns the numbers."""
+    """Measure everything (see the module docstring) with an echo child process; returns the numbers.
+    Each of the `blocks` runs ceil(count / blocks) round trips per path."""
+    blocks = min(blocks, count)
+    count = math.ceil(count / blocks) * blocks
     request_bytes, reply_bytes = _frame_sizes()
     endpoint = f"tcp/127.0.0.1:{_free_tcp_port()}"
     prefix = f"{DEFAULT_PREFIX}/bench/{os.getpid()}"
@@ -651,7 +657,7 @@ def run_bench(count: int = DEFAULT_COUNT, frames: int = DEFAULT_FRAMES, blocks: 
 
 def _measure_round_trips(child: _Child, side: Side, report: BenchReport, progress) -> None:
     drivers = _drivers(side, report.request_bytes, report.reply_bytes)
-    per_block = math.ceil(report.count / report.blocks)
+    per_block = report.count // report.blocks
     for block in range(report.blocks):
         for path in PATHS:
             result = report.round_trips[path]
@@ -791,7 +797,6 @@ def command(argv: list[str]) -> int:
     for name in ("count", "frames", "blocks"):
         if getattr(args, name) is not None:
             sizes[name] = getattr(args, name)
-    sizes["blocks"] = min(sizes["blocks"], sizes["count"])
     started = time.monotonic()
     report = run_bench(**sizes)
     print(format_report(report), flush=True)
@@ -799,5 +804,18 @@ def command(argv: list[str]) -> int:
     return 0
 
 
+def main(argv: list[str] | None = None) -> int:
+    """`python -m link.bench` / `python benchmarks/link_bench.py`: command() with cfstack's error handling
+    (a UserError is one line on stderr, never a traceback)."""
+    try:
+        return command(list(sys.argv[1:] if argv is None else argv))
+    except UserError as err:
+        print(f"link-bench: {err}", file=sys.stderr)
+        return err.exit_code
+    except KeyboardInterrupt:
+        print("link-bench: interrupted", file=sys.stderr)
+        return 130
+
+
 if __name__ == "__main__":
-    sys.exit(command(sys.argv[1:]))
+    sys.exit(main())

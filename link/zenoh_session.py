@@ -9,7 +9,10 @@ settings, closed when the last user releases it (or at interpreter exit); ZenohS
 
 Defaults (our choice, not zenoh's): peer mode, multicast scouting OFF, so a process only talks to the
 endpoints it is given. A config file (JSON5, zenoh's own format) is loaded first; any option given
-explicitly overrides the file's value.
+explicitly overrides the file's value. zenoh's own transport settings are kept: its low-latency unicast
+transport (transport/unicast/lowlatency, which needs QoS off) was measured with `cfstack link-bench` at
+~20-30 us lower round trips on loopback, but it sends every sample in its own write, so a burst of
+frames went ~3-5x slower (zenoh link 25-45 k vs 50-60 k frames/s), and it would drop QoS priorities.
 """
 
 from __future__ import annotations

@@ -85,7 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicle-model", default="crazyflie", help="vehicle name (crazyflie, cf2x) or TOML file")
     p.add_argument("--mocap-room", default="vicon", help="mocap room name or TOML file")
     p.add_argument("--radio", default="crazyradio", help="radio profile name (ideal, crazyradio, lab, harsh) or TOML")
-    p.add_argument("--clock", choices=("realtime", "lockstep"), default="lockstep")
+    p.add_argument("--clock", choices=("realtime", "lockstep"), default="lockstep",
+                   help="lockstep (default): simulation time advances only as the ground stations acknowledge "
+                        "its ticks; realtime: paced by the wall clock")
     p.add_argument("--seed", type=_seed, default=1, help="seed of every random source (>= 0)")
     p.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
     p.add_argument("--physics-rate", type=_positive_float, default=1000.0, help="physics steps per second")
@@ -94,7 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start of vehicle 1 (ENU, m); further vehicles 0.5 m apart along +x")
     p.add_argument("--duration", type=_positive_float, help="stop after this many simulated seconds")
     p.add_argument("--no-lookahead", dest="lookahead", action="store_false",
-                   help="lockstep: do not run physics ahead while waiting for acks (same results, slower)")
+                   help="lockstep: do not run physics ahead while waiting for acks (byte-identical results; "
+                        "for comparison)")
     p.add_argument("--radio-ledger", metavar="FILE",
                    help="keep every radio frame's fate and write it with the radio statistics to FILE (JSON) "
                         "at exit (memory grows with the run: for tests and short runs)")

@@ -23,6 +23,7 @@ stamped with the step count at which a non-lookahead emulator would have publish
 published with the first tick whose time reaches that stamp; tick k's view is therefore unchanged.
 Uplink frames of tick k are pushed into the radio at t_k, as without lookahead. The result is
 byte-identical with or without lookahead (tests/simulator/test_emulator*.py check it).
+A tick's frames go out in one burst, then the tick record (one sample per frame, as before).
 """
 
 from __future__ import annotations
@@ -61,7 +62,6 @@ LOOKAHEAD_MARGIN_S = 1e-9
 MAX_VEHICLES = 250  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
 
 DOWNLINK, MOCAP, TRUTH = 0, 1, 2  # outbox channels, in ClockTick count order
-CHANNEL_NAMES = ("downlink", "mocap", "truth")
 
 
 @dataclass

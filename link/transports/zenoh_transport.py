@@ -241,10 +241,15 @@ class ZenohTransport(Transport):
 
     def _wait_for_frames(self, handler, waker: _Waker, timeout_s: float) -> list[bytes]:
         """Block in the FIFO's recv() until a frame comes or the waker ends the wait at its deadline."""
-        if not self._receiving.acquire(timeout=timeout_s):
-            return self._drain(handler)  # another thread waited meanwhile
+        deadline = time.monotonic() + timeout_s
+        if not self._receiving.acquire(timeout=min(timeout_s, threading.TIMEOUT_MAX)):
+            return self._drain(handler)  # another thread waited all along
         try:
-            token = waker.arm(timeout_s)
+            remaining_s = deadline - time.monotonic()  # less what we waited for our turn
+            frames = self._drain(handler)
+            if frames or remaining_s <= 0:
+                return frames
+            token = waker.arm(remaining_s)
             try:
                 while True:
                     sample = handler.recv()

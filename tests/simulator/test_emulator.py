@@ -90,27 +90,52 @@ def bad_invocations(tmp_path) -> dict[str, list[str]]:
     }
 
 
-def test_bad_files_and_options_give_one_line_and_exit_code_2(tmp_path):
+# Through a real `python -m link emulator` process: one case of each kind (the others run in-process
+# below, through the same `cfstack` dispatcher, to keep the suite fast on a busy machine).
+SUBPROCESS_CASES = ("unknown option", "negative seed", "broken world json", "radio file missing a table",
+                    "vehicle file missing fields", "start inside a block")
+
+
+def check_one_line_error(name: str, code: int, out: str, err: str) -> str | None:
+    lines = err.strip().splitlines()
+    if code != 2 or len(lines) != 1 or "Traceback" in err or out.strip():
+        return f"{name}: exit {code}, stdout {out!r}, stderr {err!r}"
+    if not lines[0].startswith("cfstack emulator: "):
+        return f"{name}: {lines[0]!r}"
+    return None
+
+
+def test_bad_files_and_options_give_one_line_and_exit_code_2_from_the_process(tmp_path):
     cases = bad_invocations(tmp_path)
-    procs = {name: subprocess.Popen([sys.executable, "-m", "link", "emulator", "--quiet", *args],
+    procs = {name: subprocess.Popen([sys.executable, "-m", "link", "emulator", "--quiet", *cases[name]],
                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                     text=True)
-             for name, args in cases.items()}
+             for name in SUBPROCESS_CASES}
     failures = []
     for name, proc in procs.items():
         try:
-            out, err = proc.communicate(timeout=60)
+            out, err = proc.communicate(timeout=120)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.communicate()
             failures.append(f"{name}: still running (the bad input was accepted)")
             continue
-        lines = err.strip().splitlines()
-        if proc.returncode != 2 or len(lines) != 1 or "Traceback" in err or out:
-            failures.append(f"{name}: exit {proc.returncode}, stderr {err!r}")
-        elif not lines[0].startswith("cfstack emulator: "):
-            failures.append(f"{name}: {lines[0]!r}")
-    assert not failures, "\n".join(failures)
+        failures.append(check_one_line_error(name, proc.returncode, out, err))
+    assert not [f for f in failures if f], "\n".join(f for f in failures if f)
+
+
+def test_every_bad_file_and_option_gives_one_line_and_exit_code_2(tmp_path, capsys):
+    from link.cli import main
+
+    failures = []
+    for name, args in bad_invocations(tmp_path).items():
+        try:
+            code = main(["emulator", "--quiet", *args])
+        except SystemExit as exit_:  # argparse's own exit would be a second line of usage
+            code = exit_.code
+        out, err = capsys.readouterr()
+        failures.append(check_one_line_error(name, code, out, err))
+    assert not [f for f in failures if f], "\n".join(f for f in failures if f)
 
 
 @pytest.mark.parametrize("changes", [dict(vehicles=0), dict(vehicles=251), dict(seed=-1), dict(clock="fast"),
