@@ -137,6 +137,8 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
         hits = np.flatnonzero(after & near & slow)
         if hits.size:
             reached_at = float(t[hits[0]])
+    flown_track = flown[tracking & np.isfinite(flown).all(axis=1)]
+    path_length = float(np.linalg.norm(np.diff(flown_track, axis=0), axis=1).sum()) if len(flown_track) > 1 else None
     hover_rows = np.flatnonzero(phase == "hover")
     final_error = None
     if hover_rows.size:
@@ -165,6 +167,7 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
         "rms_tracking_error_m": _rms(err_tracking),
         "max_tracking_error_m": float(err_tracking.max()) if err_tracking.size else None,
         "final_position_error_m": final_error,
+        "path_length_m": path_length,  # flown (truth, else estimate) while tracking and hovering at the end
         "estimator": {"rms_position_error_m": _rms(est_pos_err), "rms_velocity_error_mps": _rms(est_vel_err)}
         | _estimator_counts(loop.estimator),
         "link": {

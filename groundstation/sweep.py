@@ -8,7 +8,8 @@ Gives out, in OUT (default ./sweep):
                    impairment) with latency.base_s = L / 1000 s and i.i.d. loss.probability = P / 100;
                    the emulator applies the one profile to both directions (uplink and downlink);
   cells/<cell>/    each flight's log folder (`cfstack fly --log`), plus fly_stdout.json / fly_stderr.txt;
-  sweep.csv        one row per cell (CSV_COLUMNS), rewritten after every finished cell;
+  sweep.csv        one row per cell (CSV_COLUMNS; `reason` is fly's failsafe_reason, or the last line fly
+                   wrote on stderr when it crashed or timed out), rewritten after every finished cell;
   sweep.json       the settings the cells were flown with (what --resume checks);
   sweep.png        heatmaps, one panel per mode: latency x loss, colour = max tracking error (m),
                    failed cells hatched and marked X;
@@ -71,7 +72,7 @@ BAR_WIDTH = 30
 # Options of `cfstack fly` the sweep sets itself: --extra may not override them.
 SWEEP_OWNED_FLY_OPTIONS = ("--mode", "--radio", "--clock", "--seed", "--json", "--log", "--connect", "--listen",
                            "--latency-compensation", "--no-latency-compensation")
-CSV_COLUMNS = ("mode", "latency_ms", "loss_pct", "success", "result", "reached_goal", "collided", "failsafe_reason",
+CSV_COLUMNS = ("mode", "latency_ms", "loss_pct", "success", "result", "reached_goal", "collided", "reason",
                "rms_tracking_error_m", "max_tracking_error_m", "min_clearance_m", "flight_time_s", "wall_time_s",
                "exit_code", "log_dir")
 SETTINGS_CHECKED_ON_RESUME = ("world", "seed", "radio_base", "extra", "latency_compensation")
@@ -334,7 +335,7 @@ class CellResult:
     result: str  # fly's result, or "crash" / "timeout" when it gave none
     reached_goal: bool = False
     collided: bool = False
-    failsafe_reason: str | None = None
+    reason: str | None = None  # fly's failsafe_reason, or the last stderr line of a crash or timeout
     rms_tracking_error_m: float | None = None
     max_tracking_error_m: float | None = None
     min_clearance_m: float | None = None
@@ -355,7 +356,7 @@ class CellResult:
             return CellResult(
                 cell=cell, success=_csv_bool(row["success"]), result=row["result"],
                 reached_goal=_csv_bool(row["reached_goal"]), collided=_csv_bool(row["collided"]),
-                failsafe_reason=row["failsafe_reason"] or None,
+                reason=row["reason"] or None,
                 **{k: _csv_float(row[k]) for k in ("rms_tracking_error_m", "max_tracking_error_m", "min_clearance_m",
                                                    "flight_time_s", "wall_time_s")},
                 exit_code=int(row["exit_code"]) if row["exit_code"] else None, log_dir=row["log_dir"])
@@ -403,13 +404,13 @@ def result_from_fly(cell: Cell, exit_code: int | None, stdout: str, stderr: str,
         summary = None
     if not isinstance(summary, dict) or "result" not in summary:
         reason = _last_line(stderr)[:200] or None
-        return CellResult(cell, success=False, result="timeout" if timed_out else "crash", failsafe_reason=reason,
+        return CellResult(cell, success=False, result="timeout" if timed_out else "crash", reason=reason,
                           wall_time_s=wall_s, exit_code=exit_code, log_dir=str(log_dir))
     reached = summary.get("reached_goal") is True
     collided = summary.get("collided") is True
     return CellResult(
         cell, success=reached and not collided and exit_code == 0, result=str(summary["result"]),
-        reached_goal=reached, collided=collided, failsafe_reason=summary.get("failsafe_reason"),
+        reached_goal=reached, collided=collided, reason=summary.get("failsafe_reason"),
         rms_tracking_error_m=_float_or_none(summary.get("rms_tracking_error_m")),
         max_tracking_error_m=_float_or_none(summary.get("max_tracking_error_m")),
         min_clearance_m=_float_or_none(summary.get("min_clearance_m")),

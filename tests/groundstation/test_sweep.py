@@ -195,7 +195,7 @@ def test_exit_code_2_aborts_with_flys_last_line():
 def test_a_crash_or_timeout_is_a_failed_cell_not_an_abort():
     crash = sweep.result_from_fly(CELL, 1, "", "Traceback...\nZeroDivisionError: boom\n", 3.0, Path("x"))
     assert (crash.success, crash.result, crash.exit_code) == (False, "crash", 1)
-    assert "boom" in crash.failsafe_reason
+    assert "boom" in crash.reason
     killed = sweep.result_from_fly(CELL, -9, "", "", 3.0, Path("x"), timed_out=True)
     assert (killed.success, killed.result) == (False, "timeout")
     garbage = sweep.result_from_fly(CELL, 0, "not json", "", 3.0, Path("x"))
@@ -211,7 +211,7 @@ def test_success_needs_the_goal_and_no_collision():
     assert not hit.success
     failsafe = sweep.result_from_fly(CELL, 1, json.dumps({**base, "result": "failsafe", "reached_goal": False,
                                                           "failsafe_reason": "mocap lost"}), "", 5.0, Path("x"))
-    assert not failsafe.success and failsafe.failsafe_reason == "mocap lost"
+    assert not failsafe.success and failsafe.reason == "mocap lost"
 
 
 def test_csv_round_trip(tmp_path):
