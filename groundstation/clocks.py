@@ -116,8 +116,11 @@ class LockstepClock:
         target = (tick.downlink_published, tick.mocap_published, tick.truth_published)
         self.link.pump(0.0)
         deadline = time.monotonic() + self.wait_timeout_s
-        while any(have < want for have, want in zip(self.link.raw_counts(), target, strict=True)):
-            self.link.pump(0.001)
+        while True:
+            short = [have < want for have, want in zip(self.link.raw_counts(), target, strict=True)]
+            if not any(short):
+                break
+            self.link.pump(0.001, wait_on=short.index(True))  # wait on the stream that is behind
             if time.monotonic() > deadline:
                 raise UserError(f"lockstep: frames of tick {tick.tick} never arrived "
                                 f"(have {self.link.raw_counts()}, expected {target})")

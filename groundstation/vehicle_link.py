@@ -58,12 +58,15 @@ class VehicleLink:
         truth = self.truth.transport.stats.chunks_received if self.truth else 0
         return (self.radio.transport.stats.chunks_received, self.mocap.transport.stats.chunks_received, truth)
 
-    def pump(self, timeout_s: float = 0.0) -> None:
-        """Move whatever has arrived into the inbox (waiting at most timeout_s on the downlink)."""
-        self.inbox.downlink.extend(self.radio.receive(timeout_s))
-        self.inbox.mocap.extend(self.mocap.receive(0.0))
+    def pump(self, timeout_s: float = 0.0, wait_on: int = 0) -> None:
+        """Move whatever has arrived into the inbox, waiting at most timeout_s on one stream
+        (wait_on: 0 downlink, 1 mocap, 2 truth - the order of raw_counts())."""
+        waits = [0.0, 0.0, 0.0]
+        waits[wait_on] = timeout_s
+        self.inbox.downlink.extend(self.radio.receive(waits[0]))
+        self.inbox.mocap.extend(self.mocap.receive(waits[1]))
         if self.truth is not None:
-            self.inbox.truth.extend(self.truth.receive(0.0))
+            self.inbox.truth.extend(self.truth.receive(waits[2]))
 
     def take(self) -> Inbox:
         inbox, self.inbox = self.inbox, Inbox()

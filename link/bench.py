@@ -186,7 +186,7 @@ class BareUdp:
 
     def send(self, payload: bytes) -> None:
         if self.peer is not None:
-            with contextlib.suppress(BlockingIOError):  # a full send buffer drops, as the transport does
+            with contextlib.suppress(BlockingIOError, TimeoutError):  # a full send buffer drops the datagram
                 self.sock.sendto(payload, self.peer)
 
     def recv(self) -> bytes:

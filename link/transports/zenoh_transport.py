@@ -29,21 +29,25 @@ Design:
   timeout in zenoh's API: a per-transport waker thread, started on the first such wait, ends the wait
   at its deadline by publishing a session-local DELETE sample on the rx key whose attachment names
   this transport and this wait (Locality.SESSION_LOCAL: it never leaves the process). Only PUT
-  samples are frames: wakes, stale wakes and any other DELETE are skipped. The waker sleeps until the
-  newest deadline and is only woken when a wait ends earlier than it planned, so a wait answered in
-  time costs it nothing. One thread waits in recv() at a time; a second concurrent receive() waits
-  for its turn, then drains. Closing undeclares the subscriber, which ends a blocked recv().
-  A full FIFO blocks zenoh's delivery, which (RELIABLE, BLOCK) slows the sender down.
-  Measured with `cfstack link-bench` (loopback, 2 processes, ThrustMoment out / ImuSample back through
-  Endpoint on both ends; ratios against a bare zenoh publisher + FIFO subscriber with a blocking recv
-  in the same run; 2-core shared machine): the previous design (a reader thread per transport moving
-  samples from the FIFO into a queue.Queue) gave p50 1.8x bare; this one ~1.3-1.4x (details in
-  link.bench and the issue). Alternatives measured on raw zenoh ping-pong (60 B, p50): reader thread
-  + queue.Queue 160-180 us, zenoh Callback(indirect=True) + deque + Condition ~145 us, a direct
-  Callback(indirect=False) 160-230 us and only ~40 k frames/s (each sample takes the GIL from a zenoh
-  thread), try_recv() + time.sleep polling 300-400 us (sleeps here last >= 70 us), this design
-  ~110 us against ~90-100 us bare. sys.setswitchinterval changed nothing measurable: with no Python
-  thread on the data path there is no GIL hand-over left to shorten.
+  samples are frames: wakes, stale wakes, wakes of another transport whose rx key overlaps ours in
+  the same session, and remote DELETEs are skipped. The waker sleeps until the newest deadline and is
+  only woken when a wait ends earlier than it planned, so a wait answered in time costs it nothing.
+  One thread waits in recv() at a time; a second concurrent receive() waits for its turn, then
+  drains. Closing undeclares the subscriber, which ends a blocked recv(). A full FIFO blocks zenoh's
+  delivery, which (RELIABLE, BLOCK) slows the sender down.
+  Measured with `cfstack link-bench` (loopback, 2 processes, 2000 round trips of a 36 B frame out and
+  a 73 B frame back, 3 alternating runs on a shared 2-core VM) against the previous design (one reader
+  thread per transport moving samples from the FIFO into a queue.Queue), p50 over bare zenoh (a raw
+  publisher + FIFO subscriber with a blocking recv, same session, same run):
+      transport alone: previous +89..+120 us (1.50-1.59x), this design +31..+48 us (1.15-1.40x);
+      full link (Endpoint, codec both ends): previous 345-402 us (1.9-2.2x), this 251-319 us (1.6-2.2x);
+      one-way burst, transport alone: previous 135-249 k frames/s, this 346-491 k frames/s.
+  Alternatives measured on raw zenoh ping-pong (60 B, p50, bare ~90-100 us): reader thread + queue
+  160-180 us; zenoh Callback(indirect=True) + deque + Condition ~145 us; Callback(indirect=False)
+  160-230 us and only ~40 k frames/s (every sample takes the GIL from a zenoh thread); try_recv() +
+  time.sleep polling 300-400 us (a sleep lasts >= 70 us here); this design ~110 us.
+  sys.setswitchinterval(1e-4) changed nothing beyond the noise, before or after: with no Python thread
+  on the data path there is no GIL hand-over left to shorten.
 """
 
 from __future__ import annotations
@@ -83,11 +87,15 @@ _OPEN_TRANSPORTS: weakref.WeakSet[ZenohTransport] = weakref.WeakSet()
 
 class _Waker:
     """Ends a receive() blocked in the FIFO's recv() at its deadline: a thread that publishes a
-    session-local DELETE sample on the rx key, tagged with the wait's token (see the module docstring).
+    session-local DELETE sample on the rx key, tagged with the wait's number (see the module docstring).
 
-    The receiving thread arms a wait (arm -> token) and disarms it when a frame came first. The thread
+    The receiving thread arms a wait (arm -> number) and disarms it when a frame came first. The thread
     sleeps until the armed deadline; re-arming with a later deadline does not wake it (it wakes at the
-    earlier one, sees the new deadline and sleeps on), so waits answered in time cost it nothing."""
+    earlier one, sees the new deadline and sleeps on), so a wait answered in time costs neither a lock
+    nor a thread switch. arm() and _run() share `_wait` and `_sleeping_until` without a lock: arm()
+    writes `_wait` before it reads `_sleeping_until`, _run() writes `_sleeping_until` (inf) before it
+    reads `_wait`, and the GIL runs them in some interleaving of those program orders, so a wait the
+    thread did not see always finds `_sleeping_until` late enough to make arm() notify it."""
 
     def __init__(self, session: zenoh.Session, key: zenoh.KeyExpr, transport_id: int):
         self._session = session
@@ -95,27 +103,34 @@ class _Waker:
         self._tag = _WAKE_TAG + f" {transport_id} ".encode()
         self._condition = threading.Condition()
         self._wait: tuple[int, float] | None = None  # (wait number, deadline), replaced whole
+        self._next_number = 1
         self._fired = 0  # the last wait number woken
-        self._sleeping_until = math.inf
-        self._waits = itertools.count(1)
+        self._sleeping_until = math.inf  # when the thread wakes next by itself (inf: never, or not started)
         self._closed = False
         self._thread: threading.Thread | None = None
 
-    def arm(self, timeout_s: float) -> bytes:
-        """Start a wait of `timeout_s`; returns the attachment its wake sample will carry."""
-        number = next(self._waits)
+    def arm(self, timeout_s: float) -> int:
+        """Start a wait of `timeout_s`; returns its number (woke() recognises its wake sample)."""
+        number = self._next_number
+        self._next_number = number + 1
         deadline = time.monotonic() + timeout_s
-        with self._condition:
-            self._wait = (number, deadline)
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._run, name=f"zenoh-wake {self._key}", daemon=True)
-                self._thread.start()
-            elif deadline < self._sleeping_until:
+        self._wait = (number, deadline)
+        if deadline < self._sleeping_until:  # the thread would wake too late, or is idle, or not started
+            with self._condition:
+                if self._thread is None:
+                    self._thread = threading.Thread(target=self._run, name=f"zenoh-wake {self._key}",
+                                                    daemon=True)
+                    self._thread.start()
                 self._condition.notify()
-        return self._tag + str(number).encode()
+        return number
 
     def disarm(self) -> None:
-        self._wait = None  # a wake already on its way is stale: receive() skips it
+        self._wait = None  # a wake already on its way is stale: woke() says no to it
+
+    def woke(self, sample: zenoh.Sample, number: int) -> bool:
+        """Is this (non-PUT) sample the wake of wait `number`?"""
+        attachment = sample.attachment
+        return attachment is not None and attachment.to_bytes() == self._tag + str(number).encode()
 
     def close(self) -> None:
         with self._condition:
@@ -127,21 +142,23 @@ class _Waker:
     def _run(self) -> None:
         with self._condition:
             while not self._closed:
+                self._sleeping_until = math.inf  # before reading _wait: see the class docstring
                 wait = self._wait
-                now = time.monotonic()
                 if wait is None or wait[0] == self._fired:
-                    self._sleeping_until = math.inf
                     self._condition.wait()
-                elif now < wait[1]:
-                    self._sleeping_until = wait[1]
-                    self._condition.wait(wait[1] - now)
-                else:
-                    self._fired = wait[0]
-                    self._condition.release()  # never publish holding the lock arm() takes
-                    try:
-                        self._wake(wait[0])
-                    finally:
-                        self._condition.acquire()
+                    continue
+                number, deadline = wait
+                now = time.monotonic()
+                if now < deadline:
+                    self._sleeping_until = deadline
+                    self._condition.wait(deadline - now)
+                    continue
+                self._fired = number
+                self._condition.release()  # never publish holding the lock arm() may take
+                try:
+                    self._wake(number)
+                finally:
+                    self._condition.acquire()
 
     def _wake(self, number: int) -> None:
         try:
@@ -240,30 +257,42 @@ class ZenohTransport(Transport):
         return frames
 
     def _wait_for_frames(self, handler, waker: _Waker, timeout_s: float) -> list[bytes]:
-        """Block in the FIFO's recv() until a frame comes or the waker ends the wait at its deadline."""
+        if not self._receiving.acquire(False):
+            return self._wait_for_turn(handler, waker, timeout_s)
+        try:
+            return self._wait_in_recv(handler, waker, timeout_s)
+        finally:
+            self._receiving.release()
+
+    def _wait_for_turn(self, handler, waker: _Waker, timeout_s: float) -> list[bytes]:
+        """Another thread waits in recv(): wait until it is done, then drain, else wait what is left."""
         deadline = time.monotonic() + timeout_s
         if not self._receiving.acquire(timeout=min(timeout_s, threading.TIMEOUT_MAX)):
-            return self._drain(handler)  # another thread waited all along
+            return self._drain(handler)
         try:
-            remaining_s = deadline - time.monotonic()  # less what we waited for our turn
             frames = self._drain(handler)
+            remaining_s = deadline - time.monotonic()
             if frames or remaining_s <= 0:
                 return frames
-            token = waker.arm(remaining_s)
-            try:
-                while True:
-                    sample = handler.recv()
-                    if sample.kind == _PUT:
-                        break
-                    attachment = sample.attachment
-                    if attachment is not None and attachment.to_bytes() == token:
-                        return []
-            finally:
-                waker.disarm()
+            return self._wait_in_recv(handler, waker, remaining_s)
+        finally:
+            self._receiving.release()
+
+    def _wait_in_recv(self, handler, waker: _Waker, timeout_s: float) -> list[bytes]:
+        """Block in the FIFO's recv() until a frame comes or the waker ends the wait at its deadline."""
+        number = waker.arm(timeout_s)
+        try:
+            while True:
+                sample = handler.recv()
+                if sample.kind == _PUT:
+                    break
+                if waker.woke(sample, number):
+                    return []
+                # else: a stale wake, another transport's wake on an overlapping key, a remote DELETE
         except zenoh.ZError:  # closed meanwhile: the subscriber (or its session) is gone
             return []
         finally:
-            self._receiving.release()
+            waker.disarm()
         return [sample.payload.to_bytes(), *self._drain(handler)]
 
     def _drain(self, handler) -> list[bytes]:
