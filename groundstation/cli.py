@@ -202,6 +202,8 @@ def _session_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
     p.add_argument("--seed", type=int, default=1, help="seed of every random source")
     p.add_argument("--from-ground", action="store_true", help="take off from the floor below the start")
+    p.add_argument("--emulator-arg", dest="emulator_extra", action="append", default=[], metavar="ARG",
+                   help="passed to the emulator child, e.g. --emulator-arg=--cut-mocap=8:2 (repeatable)")
 
 
 def fly_command(argv: list[str]) -> int:

@@ -113,6 +113,7 @@ class LockstepClock:
 
     def wait(self) -> float:
         tick = self._next_tick()
+        self.t_s = tick.time_s  # frames of this tick are received at its time (their ages depend on it)
         target = (tick.downlink_published, tick.mocap_published, tick.truth_published)
         self.link.pump(0.0)
         deadline = time.monotonic() + self.wait_timeout_s

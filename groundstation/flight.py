@@ -21,7 +21,7 @@ from estimator.eskf import POSITION, ErrorStateKF
 from groundstation.compensation import LatencyCompensator
 from groundstation.controller import ControllerState, SE3Controller
 from groundstation.flightlog import FlightLog
-from groundstation.mission import Mission, MissionParams, Phase, VehicleView
+from groundstation.mission import Mission, MissionParams, MissionStep, Phase, VehicleView
 from link.messages import (
     AttitudeTarget,
     BatteryStatus,
@@ -54,6 +54,7 @@ class LinkHealth:
     last_heartbeat: Heartbeat | None = None
     last_status: BatteryStatus | None = None
     uplink_received: int = 0  # unwrapped from the vehicle's 16-bit counter
+    last_status_s: float | None = None  # when the newest status report arrived (our clock)
     last_radio: RadioStatus | None = None
     rtt_s: list[float] = field(default_factory=list)
     offset_s: float = 0.0  # vehicle clock - ground station clock
@@ -115,6 +116,7 @@ class FlightLoop:
                 self._timesync_reply(msg, now_s)
             elif isinstance(msg, BatteryStatus):
                 self._status(msg)
+                self.health.last_status_s = now_s
             elif isinstance(msg, RadioStatus):
                 self.health.last_radio = msg
         for rx in inbox.mocap:
@@ -212,15 +214,27 @@ class FlightLoop:
             self.clock.leave()
 
     def listen_for_final_report(self) -> None:
-        """Keep receiving (and logging) for a while without sending, so the vehicle's last status
-        report counts every uplink frame we sent."""
-        end = self.clock.now() + self.p.final_report_wait_s
+        """Keep receiving and logging (phase "done", no reference, no command) without sending, until the
+        vehicle's status report covers every uplink frame we sent (a report received at r covers what
+        was sent before r minus the round trip) or final_report_wait_s has passed; after a failsafe at
+        least failsafe_observe_s, so the log shows what the vehicle's own watchdog did."""
+        start = self.clock.now()
+        observe_until = start + (self.p.failsafe_observe_s if self.mission.result == "failsafe" else 0.0)
+        give_up = max(observe_until, start + self.p.final_report_wait_s)
+        done = MissionStep(Phase.DONE, None)
         while True:
             now = self.clock.wait()
             self.absorb(now)
+            self.write_row(now, done, None)
             self.clock.done(now + self.period_s)
-            if now >= end:
+            if now >= give_up or (now >= observe_until and self._status_covers_all_sent()):
                 return
+
+    def _status_covers_all_sent(self) -> bool:
+        if self.health.last_status_s is None or self.link.last_sent_s is None:
+            return False
+        round_trip = max(self.health.rtt_s[-COMPENSATION_RTT_SAMPLES:], default=0.0)
+        return self.health.last_status_s - round_trip > self.link.last_sent_s
 
     def _interrupt(self, signum, frame) -> None:  # noqa: ARG002
         self.interrupts += 1

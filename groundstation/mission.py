@@ -44,6 +44,7 @@ class MissionParams:
     timesync_period_s: float
     land_timeout_s: float
     final_report_wait_s: float
+    failsafe_observe_s: float
     takeoff_height_m: float
     takeoff_speed_mps: float
     landing_speed_mps: float
@@ -68,7 +69,8 @@ def load_mission_params(name_or_path: str = "mission") -> MissionParams:
     return MissionParams(
         **{k: timing.number(k, **pos) for k in ("connect_timeout_s", "arm_timeout_s", "settle_s", "end_hover_s",
                                                  "max_end_hover_s", "heartbeat_period_s", "timesync_period_s",
-                                                 "land_timeout_s", "final_report_wait_s")},
+                                                 "land_timeout_s", "final_report_wait_s",
+                                                 "failsafe_observe_s")},
         **{k: motion.number(k, **pos) for k in ("takeoff_height_m", "takeoff_speed_mps", "landing_speed_mps",
                                                  "touchdown_height_m", "failsafe_descent_speed_mps")},
         goal_position_tolerance_m=goal.number("position_tolerance_m", **pos),

@@ -81,7 +81,8 @@ def run_session(opts: SessionOptions) -> SessionResult:
         clock_box: dict = {}
         link = VehicleLink(opts.connection, keys, ActuatorLimits.from_vehicle(vehicle),
                            clock=lambda: clock_box["clock"].now(), zenoh_options=opts.zenoh_options,
-                           signing=opts.signing, tlog_path=flight_log.tlog_path)
+                           signing=opts.signing, tlog_path=flight_log.tlog_path,
+                           shared_clock=opts.clock == "lockstep")
         try:
             if opts.clock == "lockstep":
                 clock_transport = open_transport(opts.connection, tx=keys.clock_ack, rx=keys.clock,
@@ -156,6 +157,7 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
     if result == "reached_goal" and reached_at is None:
         result = "timeout"  # the mission thought so from its estimate, but the truth never got there
     stats = loop.link.radio.stats.snapshot()
+    ages = np.array(loop.link.radio.stats.age_s) * 1e3
     rtts = np.array(loop.health.rtt_s) * 1e3
     status = loop.health.last_status
     summary = {
@@ -177,6 +179,12 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
             "downlink_delivered": stats.rx_frames,
             "rtt_ms_p50": float(np.percentile(rtts, 50)) if rtts.size else None,
             "rtt_ms_p99": float(np.percentile(rtts, 99)) if rtts.size else None,
+            # one-way age of downlink frames (receive time - sample time, clocks related by TIMESYNC or
+            # shared in lockstep), over the recent window the link statistics keep
+            "age_ms_p50": float(np.percentile(ages, 50)) if ages.size else None,
+            "age_ms_p99": float(np.percentile(ages, 99)) if ages.size else None,
+            "downlink_lost": stats.rx_lost,
+            "uplink_lost": None if status is None else stats.tx_frames - loop.health.uplink_received,
         },
         "mode": opts.mode,
         "latency_compensation": opts.latency_compensation,

@@ -29,14 +29,18 @@ class Inbox:
 
 class VehicleLink:
     def __init__(self, connection: str, keys: VehicleKeys, limits: ActuatorLimits, clock: Callable[[], float],
-                 *, zenoh_options: dict | None = None, signing=None, tlog_path=None, with_truth: bool = True):
+                 *, zenoh_options: dict | None = None, signing=None, tlog_path=None, with_truth: bool = True,
+                 shared_clock: bool = False):
+        """`shared_clock`: both ends stamp with the same clock (lockstep simulation time), so one-way frame
+        ages are measured directly instead of through TIMESYNC's symmetric-path offset."""
         opts = zenoh_options or {}
         self.keys = keys
         self.clock = clock
         self.tlog = TlogWriter(tlog_path) if tlog_path else None
         codec = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits, signing=signing)
         self.radio = Endpoint(open_transport(connection, tx=keys.uplink, rx=keys.downlink, **opts), codec,
-                              FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog)
+                              FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog,
+                              shared_clock=shared_clock)
         ground = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits)
         self.mocap = Endpoint(open_transport(connection, rx=keys.mocap, **opts), ground,
                               FrameParser(ground), clock=clock)
@@ -45,9 +49,11 @@ class VehicleLink:
             self.truth = Endpoint(open_transport(connection, rx=keys.truth, **opts), ground,
                                   FrameParser(ground), clock=clock)
         self.inbox = Inbox()
+        self.last_sent_s: float | None = None
 
     def send(self, message) -> None:
         self.radio.send(message, target_system=self.keys.vehicle_id)
+        self.last_sent_s = self.clock()
 
     @property
     def uplink_sent(self) -> int:

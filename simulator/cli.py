@@ -1,11 +1,11 @@
 """`cfstack emulator`: start the emulated Crazyflie(s) on zenoh and run until stopped.
 
-Takes in: command-line options (world, vehicles, radio profile, clock, seed, zenoh endpoints, key prefix;
-see `cfstack emulator --help`).
+Takes in: command-line options (world, vehicles, radio profile, clock, seed, zenoh endpoints, key prefix,
+injected faults --cut-radio / --cut-mocap AT[:DURATION] in simulated seconds; see `cfstack emulator --help`).
 Gives out: a running emulator (see simulator.emulator); on Ctrl-C or SIGTERM (or after --duration
 simulated seconds) a clean stop and a one-line summary on stderr; with --radio-ledger, a JSON file of
-the radio statistics and every frame's fate. Exit code 0; bad input (files, options) is one line on
-stderr and exit code 2, never a traceback.
+the radio statistics (frames cut, the uplink parser's signature failures) and every frame's fate.
+Exit code 0; bad input (files, options) is one line on stderr and exit code 2, never a traceback.
 """
 
 from __future__ import annotations
@@ -78,6 +78,21 @@ def _finite_float(text: str) -> float:
     return value
 
 
+def _outage(text: str) -> tuple[float, float | None]:
+    """AT[:DURATION] in simulated seconds -> (AT, DURATION or None for 'until the end')."""
+    at_text, _, duration_text = text.partition(":")
+    try:
+        at = float(at_text)
+        duration = float(duration_text) if duration_text else None
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not AT[:DURATION] in seconds (e.g. 8 or 8:0.5)") from None
+    if not (math.isfinite(at) and at >= 0.0):
+        raise argparse.ArgumentTypeError(f"'{text}': the start must be a time >= 0 s")
+    if duration is not None and not (math.isfinite(duration) and duration > 0.0):
+        raise argparse.ArgumentTypeError(f"'{text}': the duration must be a positive number of seconds")
+    return at, duration
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _OneLineParser(prog="cfstack emulator", description=__doc__.splitlines()[0])
     p.add_argument("--world", help="world JSON file (default: an empty room)")
@@ -101,6 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--radio-ledger", metavar="FILE",
                    help="keep every radio frame's fate and write it with the radio statistics to FILE (JSON) "
                         "at exit (memory grows with the run: for tests and short runs)")
+    p.add_argument("--cut-radio", type=_outage, action="append", default=[], metavar="AT[:DURATION]",
+                   help="fault injection: from simulated time AT (s) for DURATION s (default: to the end), drop "
+                        "every frame offered to either radio direction of every vehicle (repeatable)")
+    p.add_argument("--cut-mocap", type=_outage, action="append", default=[], metavar="AT[:DURATION]",
+                   help="fault injection: from simulated time AT (s) for DURATION s (default: to the end), "
+                        "publish no mocap frames (repeatable)")
     p.add_argument("--quiet", action="store_true", help="log warnings only")
     add_zenoh_arguments(p)
     add_signing_arguments(p)
@@ -110,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
     from link.vehicle import load_mocap_room, load_vehicle
     from link.world import load_world
-    from simulator.emulator import EmulatorConfig
+    from simulator.emulator import EmulatorConfig, Outage
     from simulator.radio import load_radio_profile
 
     if args.radio_ledger is not None and not Path(args.radio_ledger).resolve().parent.is_dir():
@@ -130,6 +151,10 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         connection="zenoh", zenoh_options=zenoh_options_from_args(args), start_positions_enu_m=starts,
         airborne=args.airborne, signing=signing_from_args(args), duration_s=args.duration,
         lookahead=args.lookahead, keep_ledger=args.radio_ledger is not None,
+        radio_cuts=tuple(Outage(at, duration) for at, duration in args.cut_radio),
+        mocap_cuts=tuple(Outage(at, duration) for at, duration in args.cut_mocap),
+        # the uplink gate keeps a signing state of its own (simulator.emulator.GroundFrameGate)
+        signing_factory=lambda: signing_from_args(args),
     )
 
 

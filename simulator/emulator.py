@@ -5,8 +5,24 @@ clock, connection); uplink MAVLink frames on each vehicle's uplink key (through 
 radio); lockstep acknowledgements on the clock-ack keys (link.clock).
 Gives out: downlink frames (through the downlink radio), mocap poses (ground network, no radio),
 simulation-only ground truth, lockstep clock ticks (keys: link.keys.VehicleKeys, one set per vehicle
-id 1..N); `summary()` (one line), `radio_report()` (per-channel statistics and, with keep_ledger,
+id 1..N); `summary()` (one line), `radio_report()` (per-channel statistics, the frames the fault
+windows cut, the uplink parser's counters - signature failures included - and, with keep_ledger,
 every frame's fate), and per-part timing with `profile=True` (for benchmarks).
+
+Fault injection (EmulatorConfig.radio_cuts / mocap_cuts, `--cut-radio` / `--cut-mocap`), in
+simulation time so lockstep runs stay deterministic: while a radio cut covers the time a frame is
+offered to a radio (uplink: the tick time it is pushed at; downlink: its release time), the frame is
+dropped before the radio, in both directions of every vehicle, and counted as `cut` (not as a radio
+drop cause: the radio never sees it). While a mocap cut covers a mocap frame's release time, it is not
+published (counted as `mocap_cut`).
+
+Foreign uplink frames. Anyone may publish on a vehicle's uplink key. Every sample is offered to the
+uplink radio (so the vehicle's parser rejects what is unsigned, forged or replayed, and counts it), but
+only the ground station's own frames count towards the `uplink_sent` its lockstep acks announce
+(GroundFrameGate: source system id GROUND_STATION_SYSTEM_ID and, with signing on, a valid signature
+newer than the last one, checked by a signing state of the gate's own). Foreign samples are counted
+apart (`uplink_foreign`), so they neither release a tick early nor stall one. Without signing, a frame
+that claims the ground station's system id cannot be told from its own.
 
 Clocks: `realtime` paces physics by the monotonic wall clock; `lockstep` advances simulation time
 only when every ground station taking part has acknowledged the previous tick, so a run depends on
@@ -33,16 +49,18 @@ import logging
 import math
 import time
 from collections import defaultdict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from link.clock import NS_PER_S, ClockTick, unpack_ack
-from link.codec import ActuatorLimits, Codec, FrameParser
+from link.codec import IFLAG_SIGNED, MAGIC_V2, MIN_FRAME_LEN, ActuatorLimits, Codec, FrameParser
 from link.errors import UserError
-from link.keys import VehicleKeys
+from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
 from link.messages import RadioStatus
+from link.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
 from link.transports import Transport, open_transport
 from link.vehicle import MocapRoom, Vehicle
 from link.world import World
@@ -62,6 +80,34 @@ LOOKAHEAD_MARGIN_S = 1e-9
 MAX_VEHICLES = 250  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
 
 DOWNLINK, MOCAP, TRUTH = 0, 1, 2  # outbox channels, in ClockTick count order
+
+
+@dataclass(frozen=True)
+class Outage:
+    """A fault window in simulation time: from start_s for duration_s seconds (None: to the end)."""
+
+    start_s: float
+    duration_s: float | None = None
+
+    @property
+    def end_s(self) -> float:
+        return math.inf if self.duration_s is None else self.start_s + self.duration_s
+
+    def covers(self, t_s: float) -> bool:
+        """start_s <= t_s < start_s + duration_s."""
+        return self.start_s <= t_s < self.end_s
+
+    def check(self, what: str) -> None:
+        if not (isinstance(self.start_s, (int, float)) and math.isfinite(self.start_s) and self.start_s >= 0.0):
+            raise UserError(f"{what}: start {self.start_s!r} is not a time >= 0 s")
+        d = self.duration_s
+        if d is not None and not (isinstance(d, (int, float)) and math.isfinite(d) and d > 0.0):
+            raise UserError(f"{what}: duration {d!r} is not a positive number of seconds")
+
+
+def covered(outages: tuple[Outage, ...], t_s: float) -> bool:
+    """Whether any of the windows covers simulation time t_s."""
+    return any(o.start_s <= t_s < o.end_s for o in outages)
 
 
 @dataclass
@@ -84,6 +130,11 @@ class EmulatorConfig:
     lookahead: bool = True  # lockstep: run physics ahead by the uplink's minimum latency (see above)
     keep_ledger: bool = False  # radios keep every frame's fate (memory grows with the run: tests only)
     profile: bool = False  # accumulate per-part wall time in Emulator.timing_s (benchmarks)
+    radio_cuts: tuple[Outage, ...] = ()  # every radio frame offered inside these windows is dropped
+    mocap_cuts: tuple[Outage, ...] = ()  # no mocap frame is published inside these windows
+    # A fresh Signing with the key of `signing` (one per vehicle, for GroundFrameGate's own replay state).
+    # None with signing on: the gate can only require signed frames from the ground station's system id.
+    signing_factory: Callable[[], object | None] | None = None
 
     def check(self) -> None:
         """One-line UserError for settings no emulator can run with."""
@@ -102,6 +153,47 @@ class EmulatorConfig:
         starts = self.start_positions_enu_m
         if starts is not None and len(starts) != self.vehicles:
             raise UserError(f"{len(starts)} start positions given for {self.vehicles} vehicle(s)")
+        for outage in self.radio_cuts:
+            outage.check("radio cut")
+        for outage in self.mocap_cuts:
+            outage.check("mocap cut")
+
+
+class GroundFrameGate:
+    """Counts the ground station's own frames in an uplink sample, as they arrive (before the radio).
+
+    A frame is the ground station's if it is a whole MAVLink 2 frame from GROUND_STATION_SYSTEM_ID and,
+    when signing is on, signed; with a Signing of its own (same key) the gate also checks the signature
+    and that its timestamp is newer than the last one accepted (so a replay is not counted). The
+    vehicle's parser decides independently, later, on what the radio delivers."""
+
+    def __init__(self, require_signed: bool, signing=None):
+        self.require_signed = require_signed
+        self.signing = signing
+
+    def count(self, sample: bytes) -> int:
+        """The ground station's frames in one sample (normally the sample is one frame: 0 or 1)."""
+        ours = 0
+        pos = 0
+        size = len(sample)
+        while pos + MIN_FRAME_LEN <= size and sample[pos] == MAGIC_V2:
+            signed = sample[pos + 2] & IFLAG_SIGNED
+            end = pos + MIN_FRAME_LEN + sample[pos + 1] + (SIGNATURE_BLOCK_LEN if signed else 0)
+            if end > size:
+                break
+            if self._ours(sample[pos:end], signed):
+                ours += 1
+            pos = end
+        return ours
+
+    def _ours(self, frame: bytes, signed: int) -> bool:
+        if frame[5] != GROUND_STATION_SYSTEM_ID:
+            return False
+        if not self.require_signed:
+            return True
+        if not signed:
+            return False
+        return self.signing is None or self.signing.check(frame, frame[5], frame[6]) is SignatureCheck.OK
 
 
 class VehicleNode:
@@ -128,9 +220,16 @@ class VehicleNode:
         self.codec = Codec(system_id=vehicle_id, limits=limits, signing=config.signing)
         self.ground_codec = Codec(system_id=vehicle_id, limits=limits)  # mocap and truth: never signed
         self.parser = FrameParser(self.codec, signing=config.signing)
+        gate_signing = config.signing_factory() if config.signing is not None and config.signing_factory else None
+        self.gate = GroundFrameGate(require_signed=config.signing is not None, signing=gate_signing)
         self.outbox: deque[tuple[int, int, bytes]] = deque()
         self.published = [0, 0, 0]  # frames handed out per channel (DOWNLINK, MOCAP, TRUTH)
-        self.uplink_in = 0  # uplink frames taken from the transport
+        self.uplink_in = 0  # the ground station's uplink frames taken from the transport (GroundFrameGate)
+        self.uplink_foreign = 0  # uplink samples with none of its frames (another publisher on the key)
+        self.radio_cuts = config.radio_cuts
+        self.mocap_cuts = config.mocap_cuts
+        self.cut = {"uplink": 0, "downlink": 0}  # radio frames dropped by a radio cut
+        self.mocap_cut = 0  # mocap frames not published during a mocap cut
         self.next_radio_status_s = RADIO_STATUS_PERIOD_S
         self.crash_reported = False
         self.profile = config.profile
@@ -165,10 +264,32 @@ class VehicleNode:
         return len(frames)
 
     def push_uplink(self, frames: list[bytes], push_time_s: float) -> None:
+        """Offer uplink samples to the radio at push_time_s (unless a radio cut covers it), counting
+        the ground station's frames among them for the lockstep."""
+        count = self.gate.count
+        for frame in frames:
+            ours = count(frame)
+            self.uplink_in += ours
+            if not ours:
+                self.uplink_foreign += 1
+        if self.radio_cuts and covered(self.radio_cuts, push_time_s):
+            self.cut["uplink"] += len(frames)
+            return
         push = self.uplink_radio.push
         for frame in frames:
             push(frame, push_time_s)
-        self.uplink_in += len(frames)
+
+    def _offer_downlink(self, frame: bytes, t_s: float) -> None:
+        if self.radio_cuts and covered(self.radio_cuts, t_s):
+            self.cut["downlink"] += 1
+            return
+        self.downlink_radio.push(frame, t_s)
+
+    def _mocap_cut(self, release_s: float) -> bool:
+        if self.mocap_cuts and covered(self.mocap_cuts, release_s):
+            self.mocap_cut += 1
+            return True
+        return False
 
     def take_due(self, step_no: int) -> list[tuple[int, bytes]]:
         """(channel, frame) of every queued frame stamped at or before step_no, counted as published."""
@@ -207,9 +328,10 @@ class VehicleNode:
         outbox = self.outbox
         for release_s, channel, message in sim.pop_outputs():
             if channel == "downlink":
-                self.downlink_radio.push(self.codec.encode(message), release_s)
+                self._offer_downlink(self.codec.encode(message), release_s)  # encoded: a cut frame uses its seq
             elif channel == "mocap":
-                outbox.append((step_no, MOCAP, self.ground_codec.encode(message)))
+                if not self._mocap_cut(release_s):
+                    outbox.append((step_no, MOCAP, self.ground_codec.encode(message)))
             else:
                 outbox.append((step_no, TRUTH, self.ground_codec.encode(message)))
         if t >= self.next_radio_status_s:
@@ -228,7 +350,7 @@ class VehicleNode:
     def _push_radio_status(self, t: float) -> None:
         self.next_radio_status_s += RADIO_STATUS_PERIOD_S
         status = RadioStatus(**self.downlink_radio.radio_status(reverse=self.uplink_radio))
-        self.downlink_radio.push(self.codec.encode(status), t)
+        self._offer_downlink(self.codec.encode(status), t)
 
     def _report_crash(self) -> None:
         self.crash_reported = True
@@ -260,10 +382,12 @@ class VehicleNode:
             if channel == "downlink":
                 frame = self.codec.encode(message)
                 b = clock()
-                self.downlink_radio.push(frame, release_s)
+                self._offer_downlink(frame, release_s)
                 radio_s += clock() - b
             else:
-                outbox.append((step_no, MOCAP if channel == "mocap" else TRUTH, self.ground_codec.encode(message)))
+                if channel == "truth" or not self._mocap_cut(release_s):
+                    outbox.append((step_no, MOCAP if channel == "mocap" else TRUTH,
+                                   self.ground_codec.encode(message)))
                 b = clock()
             encode_s += b - a
         t5 = clock()
@@ -501,14 +625,28 @@ class Emulator:
             if node.sim.crash is not None:
                 c = node.sim.crash
                 crash = f"crashed at t={c.time_s:.3f} s at ({', '.join(f'{v:.2f}' for v in c.position_enu_m)}) m"
-            parts.append(f"v{node.vehicle_id}: uplink {up.delivered}/{up.offered} delivered, "
-                         f"downlink {down.delivered}/{down.offered}, "
-                         f"rejected {node.sim.firmware.rejected_commands}, {crash}")
+            line = (f"v{node.vehicle_id}: uplink {up.delivered}/{up.offered} delivered, "
+                    f"downlink {down.delivered}/{down.offered}, rejected {node.sim.firmware.rejected_commands}")
+            c = node.parser.counters
+            if self.config.signing is not None or c.signature_failures:
+                line += (f", signature failures {c.signature_failures} ({c.unsigned_rejected} unsigned, "
+                         f"{c.bad_signatures} bad, {c.replays_rejected} replayed)")
+            if node.uplink_foreign:
+                line += f", {node.uplink_foreign} foreign uplink samples"
+            if self.config.radio_cuts:
+                line += f", radio cut {node.cut['uplink']} up / {node.cut['downlink']} down"
+            if self.config.mocap_cuts:
+                line += f", mocap cut {node.mocap_cut}"
+            parts.append(f"{line}, {crash}")
         return "; ".join(parts)
 
     def radio_report(self) -> dict:
-        """Per vehicle and direction: the radio's counters and, with keep_ledger, every offered
-        frame's fate [offered_s, bytes, drop cause or null, [delivery_s...]] in offer order."""
+        """Per vehicle and direction: the radio's counters, `cut` (frames a radio cut dropped before
+        the radio: not in offered, dropped or the ledger) and, with keep_ledger, every offered frame's
+        fate [offered_s, bytes, drop cause or null, [delivery_s...]] in offer order. Per vehicle also:
+        `uplink_parser` (the vehicle's frame parser counters: frames_ok, crc_failures, unsigned_rejected,
+        bad_signatures, replays_rejected, signature_failures, ...), `uplink_foreign` (uplink samples
+        not from the ground station, see GroundFrameGate) and `mocap_cut`."""
         report = {"seed": self.config.seed, "radio": self.config.radio.name, "vehicles": {}}
         for node in self.nodes:
             entry = {}
@@ -517,11 +655,14 @@ class Emulator:
                 entry[name] = {
                     "offered": s.offered, "delivered": s.delivered, "duplicated": s.duplicated,
                     "corrupted": s.corrupted, "dropped": {str(cause): count for cause, count in s.dropped.items()},
-                    "dropped_total": s.dropped_total, "pending": radio.pending,
+                    "dropped_total": s.dropped_total, "pending": radio.pending, "cut": node.cut[name],
                     "ledger": [[f.offered_s, f.size_bytes, f.drop_cause and str(f.drop_cause), list(f.delivery_s)]
                                for f in radio.ledger] if radio.keep_ledger else None,
                 }
             entry["rejected_commands"] = node.sim.firmware.rejected_commands
+            entry["uplink_parser"] = node.parser.counters.as_dict()
+            entry["uplink_foreign"] = node.uplink_foreign
+            entry["mocap_cut"] = node.mocap_cut
             entry["crash"] = None if node.sim.crash is None else {
                 "time_s": node.sim.crash.time_s, "position_enu_m": list(node.sim.crash.position_enu_m),
                 "reason": node.sim.crash.reason}

@@ -175,6 +175,7 @@ class SimVehicle:
 
     def _deliver(self, message: Message, arrival_s: float) -> None:
         if isinstance(message, TimeSync):
+            self.firmware.uplink_received += 1  # every uplink message counts, TIMESYNC too
             if message.remote_ns == 0:  # a request; tc1 = 0 would read as another request, so >= 1 ns
                 clock_ns = max(1, round(arrival_s * NS_PER_S))
                 reply = TimeSync(remote_ns=clock_ns, origin_ns=message.origin_ns)

@@ -1,0 +1,175 @@
+"""What the ground station reports about the link is true (issue 6, tests 1-3), in lockstep.
+
+1. Determinism: two `cfstack fly` runs of a lab maze with the same seed write byte-identical states.csv.
+2. Loss accounting: with i.i.d. loss of 0, 10 and 30 % and with bursty (Gilbert-Elliott) loss on both
+   directions, the ground station's measured loss matches what the emulator's radio dropped - frame for
+   frame on the downlink (MAVLink sequence numbers against the radio's ledger), and as counts on the
+   uplink (the vehicle reports how many uplink frames it received) - and the configured rate within
+   2 percentage points over at least 10,000 frames each way.
+3. Latency accounting: with a fixed one-way latency, TIMESYNC round trips and one-way frame ages equal
+   the configured latency exactly (lockstep: both ends on simulation time).
+"""
+
+import hashlib
+import json
+import signal
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import pytest
+
+from link.codec import ActuatorLimits, FrameParser
+from link.keys import GROUND_STATION_SYSTEM_ID
+from link.tlog import read_tlog
+from link.vehicle import load_vehicle
+
+WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
+RADIO_DIR = Path(__file__).resolve().parents[2] / "simulator" / "params" / "radio"
+MIN_FRAMES = 10_000
+RATE_TOLERANCE = 0.02  # 2 percentage points
+
+
+def profile(tmp_path: Path, name: str, latency_s=0.0, loss=0.0, burst=(0.0, 1.0, 0.0, 0.0)) -> Path:
+    """A radio profile file: the ideal profile's layout with the given latency and loss."""
+    p_gb, p_bg, loss_good, loss_bad = burst
+    text = (RADIO_DIR / "ideal.toml").read_text()
+    import tomllib
+
+    data = tomllib.loads(text)
+    data["name"] = name
+    data["source"] = "test profile"
+    data["latency"].update(base_s=latency_s, jitter_s=0.0)
+    data["loss"]["probability"] = loss
+    data["burst"].update(p_good_to_bad=p_gb, p_bad_to_good=p_bg, loss_good=loss_good, loss_bad=loss_bad)
+    path = tmp_path / f"{name}.toml"
+    path.write_text(_toml(data))
+    return path
+
+
+def _toml(data: dict) -> str:
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return json.dumps(v)
+        return repr(v)
+
+    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    for section, table in data.items():
+        if isinstance(table, dict):
+            lines.append(f"\n[{section}]")
+            lines += [f"{k} = {value(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def fly_against_emulator(tmp_path: Path, radio: Path, *gs_args: str) -> tuple[dict, dict, Path]:
+    """Emulator (with its radio ledger) and ground station as two programs; returns (summary, report, log)."""
+    endpoint, prefix = f"tcp/127.0.0.1:{free_port()}", f"a{uuid.uuid4().hex[:8]}"
+    ledger, log = tmp_path / "radio.json", tmp_path / "log"
+    emulator = subprocess.Popen([sys.executable, "-m", "link", "emulator", "--listen", endpoint, "--id", prefix,
+                                 "--radio", str(radio), "--seed", "3", "--radio-ledger", str(ledger), "--quiet"],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                text=True)
+    try:
+        run = subprocess.run([sys.executable, "-m", "link", "groundstation", "--connect", endpoint, "--id", prefix,
+                              "--clock", "lockstep", "--json", "--log", str(log), *gs_args],
+                             capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    finally:
+        emulator.send_signal(signal.SIGINT)
+        emulator.communicate(timeout=30)
+    assert run.stdout.strip(), run.stderr
+    return json.loads(run.stdout), json.loads(ledger.read_text())["vehicles"]["1"], log
+
+
+def received_downlink_indices(log: Path) -> list[int]:
+    """Offer indices of the downlink frames the ground station received, unwrapped from 8-bit sequences."""
+    frames = read_tlog(log / "link.tlog", FrameParser(ActuatorLimits.from_vehicle(load_vehicle())))
+    indices, last_seq, index = [], None, -1
+    for _, decoded in frames:
+        if decoded.system_id == GROUND_STATION_SYSTEM_ID:
+            continue
+        index = decoded.sequence if last_seq is None else index + (decoded.sequence - last_seq) % 256
+        last_seq = decoded.sequence
+        indices.append(index)
+    return indices
+
+
+LOSS_CASES = {
+    "iid_0": dict(loss=0.0),
+    "iid_10": dict(loss=0.10),
+    "iid_30": dict(loss=0.30),
+    # Gilbert-Elliott: bursts of mean length 1 / p_bg = 5 frames; stationary loss p_gb / (p_gb + p_bg)
+    "bursty": dict(burst=(0.02, 0.2, 0.0, 1.0)),
+}
+
+
+def configured_loss(case: dict) -> float:
+    if "burst" in case:
+        p_gb, p_bg, loss_good, loss_bad = case["burst"]
+        bad = p_gb / (p_gb + p_bg)
+        return bad * loss_bad + (1 - bad) * loss_good
+    return case["loss"]
+
+
+@pytest.mark.parametrize("case", list(LOSS_CASES))
+def test_measured_loss_matches_the_radio_frame_for_frame(tmp_path, case):
+    radio = profile(tmp_path, case, **LOSS_CASES[case])
+    summary, report, log = fly_against_emulator(tmp_path, radio, "--trajectory", "hover", "--mode", "moments")
+    link = summary["link"]
+    down, up = report["downlink"], report["uplink"]
+
+    # Downlink, frame for frame: the frames the ground station holds are exactly those the radio delivered.
+    received = received_downlink_indices(log)
+    delivered = [i for i, fate in enumerate(down["ledger"]) if fate[3]]
+    first, last = received[0], received[-1]
+    assert received == [i for i in delivered if first <= i <= last]
+    # Sequence numbers can only reveal losses between the first and the last frame received.
+    dropped = sum(1 for fate in down["ledger"][first: last + 1] if fate[2] is not None)
+    assert link["downlink_lost"] == dropped  # loss from sequence numbers = the radio's drops
+    assert link["downlink_sent"] == last - first + 1 >= MIN_FRAMES
+
+    # Uplink: what the vehicle reports receiving is exactly what the radio delivered of what we sent.
+    assert up["offered"] == link["uplink_sent"] >= MIN_FRAMES
+    assert link["uplink_delivered"] == up["delivered"]
+    assert link["uplink_lost"] == up["dropped_total"]
+
+    expected = configured_loss(LOSS_CASES[case])
+    assert abs(link["downlink_lost"] / link["downlink_sent"] - expected) <= RATE_TOLERANCE
+    assert abs(link["uplink_lost"] / link["uplink_sent"] - expected) <= RATE_TOLERANCE
+
+
+def test_timesync_and_frame_ages_equal_the_configured_latency(tmp_path):
+    latency_s = 0.020  # a multiple of the 2 ms control tick and of the IMU period: no quantisation
+    radio = profile(tmp_path, "fixed20", latency_s=latency_s)
+    summary, _, _ = fly_against_emulator(tmp_path, radio, "--trajectory", "hover", "--mode", "moments",
+                                         "--latency-compensation")
+    link = summary["link"]
+    assert link["rtt_ms_p50"] == pytest.approx(2e3 * latency_s, abs=1e-6)
+    assert link["rtt_ms_p99"] == pytest.approx(2e3 * latency_s, abs=1e-6)
+    assert link["age_ms_p50"] == pytest.approx(1e3 * latency_s, abs=1e-6)
+    assert link["age_ms_p99"] == pytest.approx(1e3 * latency_s, abs=1e-6)
+
+
+@pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
+def test_same_seed_gives_byte_identical_states_and_another_seed_differs(tmp_path):
+    def states_hash(seed: int, name: str) -> str:
+        log = tmp_path / name
+        run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / "maze_2024_1.json"), "--mode",
+                              "attitude", "--seed", str(seed), "--json", "--log", str(log)],
+                             capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+        assert json.loads(run.stdout)["result"] == "reached_goal", run.stderr
+        return hashlib.sha256((log / "states.csv").read_bytes()).hexdigest()
+
+    first = states_hash(11, "a")
+    assert states_hash(11, "b") == first
+    assert states_hash(12, "c") != first
