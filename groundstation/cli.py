@@ -176,6 +176,13 @@ class EmulatorChild:
         self.stderr.seek(0)
         return self.stderr.read().strip().splitlines()
 
+    def failure(self) -> str | None:
+        """None while the child runs; else its last words (e.g. a bad radio profile)."""
+        if self.proc.poll() is None:
+            return None
+        err = self._stderr_lines()
+        return f"the emulator stopped: {err[-1]}" if err else f"the emulator stopped (exit {self.proc.returncode})"
+
     def check_started(self) -> None:
         time.sleep(0.05)
         if self.proc.poll() is not None:
@@ -232,6 +239,7 @@ def _fly_with_emulator(args, world, airborne: bool, opts: SessionOptions):
         child = EmulatorChild(args, getattr(args, "world", None), airborne, args.clock)
         child.check_started()
         opts.zenoh_options = {**zopts, "connect": [child.endpoint], "listen": []}
+        opts.peer_failure = child.failure
     try:
         return run_session(opts)
     finally:

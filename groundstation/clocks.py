@@ -95,11 +95,13 @@ class LockstepClock:
 
     kind = "lockstep"
 
-    def __init__(self, period_s: float, link, clock_transport, wait_timeout_s: float = 30.0):
+    def __init__(self, period_s: float, link, clock_transport, wait_timeout_s: float = 30.0, peer_failure=None):
+        """`peer_failure()`: None while the emulator we started is alive, else why it stopped."""
         self.period_s = period_s
         self.link = link
         self.transport = clock_transport
         self.wait_timeout_s = wait_timeout_s
+        self.peer_failure = peer_failure or (lambda: None)
         self.timer = TickTimer(period_s)
         self.tick = -1
         self.t_s = 0.0
@@ -139,6 +141,9 @@ class LockstepClock:
                 if tick is not None and tick.tick > self.tick:
                     return tick
             waited += 0.5
+            failure = self.peer_failure()
+            if failure:
+                raise UserError(failure)
             if self.tick < 0:  # the join may have gone out before the emulator subscribed: say it again
                 self.start()
             if waited >= self.wait_timeout_s:

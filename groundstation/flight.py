@@ -149,6 +149,8 @@ class FlightLoop:
         hb = self.health.last_heartbeat
         if hb is None or not self.estimator.initialised:
             return None
+        if self.compensator is not None and not self.health.rtt_s:
+            return None  # compensating needs a latency estimate: stay connecting until TIMESYNC answers
         est = self.estimator.estimate()
         downlink_age = now_s - (self.health.last_downlink_s or now_s)
         # "Unhealthy" for the mission means the filter itself is in trouble (its position uncertainty is
@@ -173,7 +175,9 @@ class FlightLoop:
             self.next_heartbeat_s = now_s + self.p.heartbeat_period_s
         if now_s >= self.next_timesync_s:
             self.link.send(self.timesync.request())
-            self.next_timesync_s = now_s + self.p.timesync_period_s
+            # ask more often until the first reply: with compensation on, the mission waits for it
+            period = self.p.timesync_period_s if self.health.rtt_s else self.p.timesync_period_s / 5
+            self.next_timesync_s = now_s + period
 
     def uplink_latency_s(self) -> float | None:
         """One-way uplink latency: half the median of the recent TIMESYNC round trips."""

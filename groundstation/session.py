@@ -57,6 +57,7 @@ class SessionOptions:
     signing: object | None = None
     extra_summary: dict = field(default_factory=dict)
     plan: dict | None = None
+    peer_failure: object = None  # callable: why the emulator child stopped, or None while it runs
 
 
 @dataclass
@@ -87,7 +88,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
             if opts.clock == "lockstep":
                 clock_transport = open_transport(opts.connection, tx=keys.clock_ack, rx=keys.clock,
                                                  **opts.zenoh_options)
-                clock = LockstepClock(period, link, clock_transport)
+                clock = LockstepClock(period, link, clock_transport, peer_failure=opts.peer_failure)
             else:
                 clock_transport = None
                 clock = RealtimeClock(period, link)
