@@ -290,7 +290,8 @@ class FlightLoop:
         self.log.row(now, step.phase.value, truth_vals, est_vals, sigma, ref, moment, attitude,
                      None if out is None else bool(out.saturated), view_age,
                      None if est is None else est.healthy, stats.tx_frames,
-                     stats.rx_frames, stats.sequences.lost, rtt, tick_ms)
+                     stats.rx_frames, stats.sequences.lost, rtt, tick_ms,
+                     None if est is None else est.time_s)
         self.record.t.append(now)
         self.record.phase.append(step.phase.value)
         self.record.ref.append(None if step.reference is None else np.array(step.reference.position_m, float))

@@ -1,0 +1,161 @@
+"""Flight-loop benchmark (issues 4 and 6): lockstep speed, realtime tick timing and end-to-end latency.
+
+Prints, from one run:
+1. Lockstep real-time factor (simulated / wall seconds) of a 20 s circle flight and of a full lab-maze
+   flight over zenoh, in each command mode (targets: >= 5x in moments mode at 500 Hz, >= 20x in attitude
+   mode at 100 Hz).
+2. Realtime: the ground station at 500 Hz with the emulator at 1 kHz beside it for a hover flight: tick
+   work time p50/p99, deadline-miss rate, achieved rates of both.
+3. End-to-end latency in that realtime flight: from the sample time of the newest IMU sample a command
+   was computed from (states.csv est_time_s) to the moment the vehicle applies that command (its uplink
+   frame's delivery by the radio, from the emulator's ledger, then the next 500 Hz firmware tick), all on
+   the vehicle's clock, p50/p99 - next to a bare UDP round trip of the same size measured in the same run.
+
+Usage: python benchmarks/loop_bench.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+from tempfile import TemporaryDirectory
+
+import numpy as np
+
+from link.codec import ActuatorLimits, FrameParser
+from link.keys import GROUND_STATION_SYSTEM_ID
+from link.messages import ThrustMoment
+from link.tlog import read_tlog
+from link.vehicle import load_vehicle
+
+WORLDS = Path(__file__).resolve().parents[1].parent / "shared" / "worlds"
+MAZE = "test_lab_1"
+FIRMWARE_RATE_HZ = 500.0  # simulator/params/firmware.toml commander rate: when a delivered setpoint acts
+
+
+def cfstack(*args: str, timeout: float = 900) -> dict:
+    run = subprocess.run([sys.executable, "-m", "link", *args, "--json"], capture_output=True, text=True,
+                         timeout=timeout, stdin=subprocess.DEVNULL)
+    if not run.stdout.strip():
+        raise SystemExit(f"cfstack {' '.join(args)} failed: {run.stderr.strip()[-300:]}")
+    return json.loads(run.stdout)
+
+
+def lockstep_table(tmp: Path, quick: bool) -> None:
+    print("\n1. Lockstep real-time factor over zenoh (crazyradio profile)")
+    print(f"{'flight':28} {'mode':9} {'sim (s)':>8} {'wall (s)':>8} {'RTF':>6} {'target':>7} {'result':>13}")
+    flights = [("20 s circle", ["fly", "--trajectory", "circle"])]
+    if WORLDS.is_dir() and not quick:
+        flights.append((f"maze {MAZE}", ["fly", str(WORLDS / f"{MAZE}.json")]))
+    for name, args in flights:
+        for mode, target in (("moments", 5.0), ("attitude", 20.0)):
+            s = cfstack(*args, "--mode", mode, "--log", str(tmp / f"{name.replace(' ', '_')}_{mode}"))
+            rtf = s["sim_time_s"] / s["wall_time_s"]
+            print(f"{name:28} {mode:9} {s['sim_time_s']:8.2f} {s['wall_time_s']:8.2f} {rtf:6.1f} "
+                  f"{target:7.0f} {s['result']:>13} {'PASS' if rtf >= target else 'MISS'}")
+
+
+def realtime_flight(tmp: Path) -> tuple[dict, Path, dict, str]:
+    port = _free_port()
+    endpoint, prefix = f"tcp/127.0.0.1:{port}", f"b{uuid.uuid4().hex[:8]}"
+    ledger, log = tmp / "ledger.json", tmp / "realtime"
+    emulator = subprocess.Popen([sys.executable, "-m", "link", "emulator", "--listen", endpoint, "--id", prefix,
+                                 "--clock", "realtime", "--radio-ledger", str(ledger), "--quiet"],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                text=True)
+    try:
+        time.sleep(1.0)
+        summary = cfstack("groundstation", "--connect", endpoint, "--id", prefix, "--clock", "realtime",
+                          "--trajectory", "hover", "--log", str(log))
+    finally:
+        emulator.send_signal(2)
+        _, err = emulator.communicate(timeout=30)
+    return summary, log, json.loads(ledger.read_text())["vehicles"]["1"], err.strip().splitlines()[-1]
+
+
+def end_to_end_ms(log: Path, ledger: dict) -> np.ndarray:
+    """Per command: (firmware tick applying it) - (sample time of the IMU data it was computed from)."""
+    with open(log / "states.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r["est_time_s"] and r["cmd_thrust_n"]]
+    basis = {round(float(r["t_s"]), 6): float(r["est_time_s"]) for r in rows}
+    parser = FrameParser(ActuatorLimits.from_vehicle(load_vehicle()))
+    sent = [d for _, d in read_tlog(log / "link.tlog", parser) if d.system_id == GROUND_STATION_SYSTEM_ID]
+    fates = ledger["uplink"]["ledger"]
+    out = []
+    for index, decoded in enumerate(sent[: len(fates)]):
+        if not isinstance(decoded.message, ThrustMoment) or not fates[index][3]:
+            continue
+        issued = round(decoded.message.time_s, 6)
+        if issued not in basis:
+            continue
+        applied = math.ceil(fates[index][3][0] * FIRMWARE_RATE_HZ - 1e-9) / FIRMWARE_RATE_HZ
+        out.append((applied - basis[issued]) * 1e3)
+    return np.array(out)
+
+
+def bare_udp_rtt_ms(size: int, count: int = 2000) -> np.ndarray:
+    """Round trips of `size`-byte datagrams through an echo in another process (loopback)."""
+    port = _free_port(socket.SOCK_DGRAM)
+    echo = subprocess.Popen([sys.executable, "-c", (
+        "import socket,sys\n"
+        f"s=socket.socket(socket.AF_INET,socket.SOCK_DGRAM);s.bind(('127.0.0.1',{port}))\n"
+        "print('ready',flush=True)\n"
+        "while True:\n d,a=s.recvfrom(2048)\n if d==b'stop': break\n s.sendto(d,a)\n")],
+        stdout=subprocess.PIPE, text=True)
+    echo.stdout.readline()
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    payload, rtts = b"x" * size, []
+    for _ in range(count):
+        t0 = time.perf_counter()
+        s.sendto(payload, ("127.0.0.1", port))
+        s.recvfrom(2048)
+        rtts.append((time.perf_counter() - t0) * 1e3)
+    s.sendto(b"stop", ("127.0.0.1", port))
+    echo.wait(timeout=10)
+    return np.array(rtts)
+
+
+def _free_port(kind=socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="skip the maze flights")
+    args = p.parse_args()
+    with TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        lockstep_table(tmp, args.quick)
+        summary, log, ledger, emulator_line = realtime_flight(tmp)
+        t = summary.get("timing", {})
+        print("\n2. Realtime: ground station 500 Hz, emulator 1 kHz, hover flight")
+        print(f"ground station: {t.get('ticks')} ticks, achieved {t.get('achieved_rate_hz', 0):.1f} Hz, tick work "
+              f"p50 {t.get('tick_ms_p50', 0):.3f} ms p99 {t.get('tick_ms_p99', 0):.3f} ms, deadline misses "
+              f"{100 * t.get('deadline_miss_rate', 0):.2f} % ({summary['result']})")
+        print(emulator_line)
+        e2e = end_to_end_ms(log, ledger)
+        frame = 12 + 22  # SET_ACTUATOR_CONTROL_TARGET: header + CRC + payload, the size of a command
+        udp = bare_udp_rtt_ms(frame)
+        print("\n3. End-to-end latency (IMU sample -> command applied on the vehicle), realtime, zenoh loopback")
+        if e2e.size:
+            p50, p99 = np.percentile(e2e, [50, 99])
+            print(f"commands matched: {e2e.size}; p50 {p50:.2f} ms, p99 {p99:.2f} ms")
+        else:
+            print("no command could be matched to its IMU basis")
+        print(f"bare UDP round trip ({frame} B, same run): p50 {np.percentile(udp, 50):.3f} ms, "
+              f"p99 {np.percentile(udp, 99):.3f} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
