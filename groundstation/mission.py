@@ -242,7 +242,8 @@ class Mission:
 
     def _land(self, t: float, view: VehicleView) -> MissionStep:
         touched = view.position_enu_m[2] - self.ground_height(view.position_enu_m) <= self.p.touchdown_height_m
-        if touched or t - self.phase_start_s > self.p.land_timeout_s:
+        # the descent's own duration (it grows with the height) plus the slack land_timeout_s
+        if touched or t - self.phase_start_s > self.segment.duration_s + self.p.land_timeout_s:
             self._enter(Phase.DISARM, t)
             return self._disarm(t, view)
         return MissionStep(self.phase, self._segment_ref(t))
