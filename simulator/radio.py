@@ -61,6 +61,7 @@ JITTER_LAWS = ("uniform", "normal")
 UINT8_UNKNOWN = 255  # MAVLink RADIO_STATUS: UINT8_MAX means "invalid/unknown"
 RSSI_MAX = 254  # MAVLink RADIO_STATUS rssi range is 0..254
 UINT16_WRAP = 1 << 16  # rx_errors and fixed are uint16 counters that wrap
+TIME_EPS_S = 1e-9  # simulation times closer than this are the same instant
 _UNIFORM_BLOCK = 4096  # uniforms drawn per call to the generator (speed only; the stream is the same)
 
 
@@ -443,10 +444,14 @@ class RadioChannel:
             self.ledger.append(fate)
 
     def pop_due(self, t_s: float) -> list[bytes]:
-        """Every frame delivered at or before t_s, in delivery order (ties: offer order)."""
+        """Every frame delivered at or before t_s, in delivery order (ties: offer order).
+
+        Times within TIME_EPS_S count as equal: offer time + latency carries float rounding (0.1 + 0.02 >
+        0.12), and a frame due exactly at a step must not slip to the next one."""
         out = []
         heap, stats = self._heap, self.stats
-        while heap and heap[0][0] <= t_s:
+        due = t_s + TIME_EPS_S
+        while heap and heap[0][0] <= due:
             delivery_s, _, index, data, corrupted, offered_s, repaired = heapq.heappop(heap)
             stats.delivered += 1
             stats.bytes_delivered += len(data)
