@@ -160,7 +160,7 @@ class FlightLoop:
             t_s=now_s, position_enu_m=np.asarray(est.position_enu_m, float),
             velocity_enu_mps=np.asarray(est.velocity_enu_mps, float), armed=hb.armed,
             crashed=hb.mode == VehicleMode.CRASHED, mocap_age_s=self.mocap_age(now_s, est),
-            estimator_healthy=filter_ok, downlink_age_s=downlink_age,
+            estimator_healthy=filter_ok, downlink_age_s=downlink_age, landing=hb.mode == VehicleMode.LANDING,
         )
 
     def mocap_age(self, now_s: float, est) -> float:

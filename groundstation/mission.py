@@ -8,6 +8,7 @@ vehicle command to send (arm, disarm) when one is due.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 
@@ -17,6 +18,8 @@ from groundstation.trajectories.basic import Hover, Line
 from groundstation.trajectory import FlatOutput, Trajectory
 from link.config import Params, resolve
 from link.messages import CommandKind
+
+COMMAND_REPEAT_S = 0.25  # arm/land commands are repeated this often until the vehicle reports them done
 
 
 class Phase(Enum):
@@ -94,6 +97,7 @@ class VehicleView:
     mocap_age_s: float
     estimator_healthy: bool
     downlink_age_s: float
+    landing: bool = False  # the vehicle's own LAND is under way (heartbeat mode LANDING)
 
 
 @dataclass
@@ -122,6 +126,7 @@ class Mission:
         self.failsafe_reason: str | None = None
         self.abort_requested = False
         self._last_arm_s = -1.0
+        self._last_land_s = -math.inf
 
     # --- helpers ---------------------------------------------------------------------------------
     def _enter(self, phase: Phase, t: float, segment: Trajectory | None = None) -> None:
@@ -177,7 +182,7 @@ class Mission:
             Phase.ARM: self._arm, Phase.TAKEOFF: self._takeoff, Phase.SETTLE: self._settle,
             Phase.TRACK: self._track, Phase.HOVER: self._hover, Phase.LAND: self._land,
             Phase.DISARM: self._disarm, Phase.FAILSAFE_HOLD: self._failsafe_hold,
-            Phase.FAILSAFE_DESCENT: self._land,
+            Phase.FAILSAFE_DESCENT: self._failsafe_descent,
         }[self.phase]
         return handler(t, view)
 
@@ -209,7 +214,7 @@ class Mission:
             self._enter(Phase.DONE, t)
             return MissionStep(self.phase, None)
         command = None
-        if t - self._last_arm_s >= 0.25:  # re-send: the uplink may lose it
+        if t - self._last_arm_s >= COMMAND_REPEAT_S:  # re-send: the uplink may lose it
             command = CommandKind.ARM
             self._last_arm_s = t
         return MissionStep(self.phase, hold, command)
@@ -254,6 +259,16 @@ class Mission:
             return MissionStep(self.phase, None)
         return MissionStep(self.phase, None, CommandKind.DISARM)
 
+    def _failsafe_descent(self, t: float, view: VehicleView) -> MissionStep:
+        if not view.armed:
+            self._enter(Phase.DISARM, t)
+            return MissionStep(self.phase, None)
+        command = None
+        if not view.landing and t - self._last_land_s >= COMMAND_REPEAT_S:  # re-send: the uplink may lose it
+            command = CommandKind.LAND
+            self._last_land_s = t
+        return MissionStep(self.phase, None, command)
+
     def _failsafe_hold(self, t: float, view: VehicleView) -> MissionStep:
         if view.mocap_age_s <= self.p.mocap_hold_after_s and view.estimator_healthy:
             # mocap is back: resume where the plan would be (the track clock kept running)
@@ -285,8 +300,10 @@ class Mission:
             self.result = "failsafe"
             self.failsafe_reason = ("estimator unhealthy" if lost <= self.p.mocap_descend_after_s
                                     else f"mocap lost for {lost:.2f} s")
-            self._enter(Phase.FAILSAFE_DESCENT, t, self._descent(view, self.p.failsafe_descent_speed_mps))
-            return MissionStep(self.phase, self._segment_ref(t))
+            # Without mocap the ground station's estimate drifts; the vehicle's own LAND descends on what it
+            # measures itself until the floor holds it, then disarms.
+            self._enter(Phase.FAILSAFE_DESCENT, t)
+            return self._failsafe_descent(t, view)
         if lost > self.p.mocap_hold_after_s and self.phase != Phase.FAILSAFE_HOLD:
             self._resume_phase = (self.phase, self.phase_start_s, self.segment)
             self._enter(Phase.FAILSAFE_HOLD, t, self._hold(view.position_enu_m, t))

@@ -49,7 +49,15 @@ from link.messages import (
 from link.vehicle import GRAVITY_MPS2, Vehicle
 from simulator.dynamics import ContactParams, Crash
 from simulator.mixer import Mixer
-from simulator.rotation import Quat, Vec3, quat_conjugate, quat_from_yaw, quat_multiply, yaw_of
+from simulator.rotation import (
+    Quat,
+    Vec3,
+    quat_conjugate,
+    quat_from_euler_zyx,
+    quat_from_yaw,
+    quat_multiply,
+    yaw_of,
+)
 
 MOTORS_OFF = (0.0, 0.0, 0.0, 0.0)
 
@@ -67,6 +75,8 @@ class FirmwareParams:
     landing_descent_speed_mps: float
     landing_velocity_gain_per_s: float
     landing_timeout_s: float
+    landing_horizontal_gain_per_s: float
+    landing_max_tilt_rad: float
     heartbeat_rate_hz: float
     battery_rate_hz: float
     truth_rate_hz: float
@@ -108,6 +118,8 @@ def load_firmware_params(name_or_path: str | Path = "firmware") -> FirmwareParam
         landing_descent_speed_mps=landing.number("descent_speed_mps", minimum=0.01),
         landing_velocity_gain_per_s=landing.number("velocity_gain_per_s", minimum=0.0),
         landing_timeout_s=landing.number("timeout_s", minimum=0.0),
+        landing_horizontal_gain_per_s=landing.number("horizontal_velocity_gain_per_s", minimum=0.0),
+        landing_max_tilt_rad=landing.number("max_tilt_rad", minimum=0.0, maximum=1.0),
         heartbeat_rate_hz=telemetry.number("heartbeat_rate_hz", minimum=0.01),
         battery_rate_hz=telemetry.number("battery_rate_hz", minimum=0.01),
         truth_rate_hz=telemetry.number("truth_rate_hz", minimum=0.01),
@@ -323,7 +335,20 @@ class Firmware:
         cos_tilt = max(1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]), 0.5)  # thrust along body z; cap the boost
         accel = GRAVITY_MPS2 + p.landing_velocity_gain_per_s * (-p.landing_descent_speed_mps - vz)
         thrust = min(max(self.vehicle.mass_kg * accel / cos_tilt, 0.0), self.vehicle.max_thrust_n)
-        return self._follow_attitude(thrust, quat_from_yaw(self._held_yaw_rad), (0.0, 0.0, 0.0), body)
+        return self._follow_attitude(thrust, self._braking_attitude(body), (0.0, 0.0, 0.0), body)
+
+    def _braking_attitude(self, body: BodyState) -> Quat:
+        """Tilt against the horizontal velocity (a_xy = -k v_xy, as a Crazyflie with a flow deck holds
+        velocity), within max_tilt, at the held yaw."""
+        p, yaw = self.params, self._held_yaw_rad
+        vx, vy = body.velocity_enu_mps[0], body.velocity_enu_mps[1]
+        ax, ay = -p.landing_horizontal_gain_per_s * vx, -p.landing_horizontal_gain_per_s * vy
+        forward = math.cos(yaw) * ax + math.sin(yaw) * ay  # in the yaw frame
+        left = -math.sin(yaw) * ax + math.cos(yaw) * ay
+        limit = p.landing_max_tilt_rad
+        pitch = min(max(math.atan2(forward, GRAVITY_MPS2), -limit), limit)  # +pitch tips thrust to +x
+        roll = min(max(-math.atan2(left, GRAVITY_MPS2), -limit), limit)  # +roll tips thrust to -y
+        return quat_from_euler_zyx(roll, pitch, yaw)
 
     # --- reports ----------------------------------------------------------------------------------
     @property

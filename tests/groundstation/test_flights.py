@@ -20,8 +20,8 @@ import pytest
 from groundstation.logread import read_log
 from link.codec import ActuatorLimits, FrameParser
 from link.messages import ImuSample, ThrustMoment
-from link.vehicle import load_vehicle
 from link.tlog import read_tlog
+from link.vehicle import load_vehicle
 
 SUMMARY_KEYS = {"result", "reached_goal", "collided", "min_clearance_m", "flight_time_s", "rms_tracking_error_m",
                 "max_tracking_error_m", "final_position_error_m", "estimator", "link", "sim_time_s",

@@ -14,10 +14,11 @@ P = load_mission_params()
 DT = 0.002
 
 
-def view(t, pos, armed=True, vel=(0.0, 0.0, 0.0), mocap_age=0.0, healthy=True, downlink_age=0.0, crashed=False):
+def view(t, pos, armed=True, vel=(0.0, 0.0, 0.0), mocap_age=0.0, healthy=True, downlink_age=0.0, crashed=False,
+         landing=False):
     return VehicleView(t_s=t, position_enu_m=np.array(pos, float), velocity_enu_mps=np.array(vel, float),
                        armed=armed, crashed=crashed, mocap_age_s=mocap_age, estimator_healthy=healthy,
-                       downlink_age_s=downlink_age)
+                       downlink_age_s=downlink_age, landing=landing)
 
 
 def airborne_mission(track=None):
@@ -104,7 +105,12 @@ def test_mocap_loss_holds_then_descends_at_the_thresholds():
     np.testing.assert_allclose(hold_ref, [0.1, 0, 1])  # hold where the estimate is
     assert abs(descend_at - P.mocap_descend_after_s) <= 2 * DT
     assert m.result == "failsafe" and "mocap" in m.failsafe_reason
-    assert step.reference.position_m[2] <= 1.0 and step.reference.velocity_mps[2] <= 0  # going down
+    # the vehicle's own LAND, no more setpoints from a drifting estimate; then disarmed -> done
+    assert step.reference is None and step.command == CommandKind.LAND
+    t += DT
+    assert m.update(t, view(t, [0.1, 0, 0.5], mocap_age=t - lost_at, landing=True)).command is None
+    t += DT
+    assert m.update(t, view(t, [0.1, 0, 0], armed=False, mocap_age=t - lost_at)).phase == Phase.DISARM
 
 
 def test_mocap_back_before_one_second_resumes_the_plan():
@@ -124,6 +130,7 @@ def test_unhealthy_estimator_descends_and_silent_downlink_stops_commanding():
     t += DT
     step = m.update(t, view(t, [0, 0, 1], healthy=False))
     assert step.phase == Phase.FAILSAFE_DESCENT and m.failsafe_reason == "estimator unhealthy"
+    assert step.command == CommandKind.LAND
 
     m, t = airborne_mission()
     t += DT
