@@ -615,7 +615,7 @@ class Emulator:
         sim_s = self.tick_time_s if self.config.clock == "lockstep" else self.t_s
         running = now - (self.first_tick_wall or self.wall_start)  # lockstep: from the first tick
         rtf = sim_s / running if running > 0 else 0.0
-        parts = [f"emulator: stopped at t={sim_s:.3f} s simulated ({wall:.1f} s wall, {rtf:.1f}x real time), "
+        parts = [f"emulator: stopped at t={sim_s:.3f} s simulated ({wall:.1f} s wall, {rtf:.3f}x real time), "
                  f"{len(self.nodes)} vehicle(s), seed {self.config.seed}"]
         if self.config.clock == "lockstep":
             parts[0] += f", {self.tick + 1} ticks"
