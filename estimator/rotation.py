@@ -17,29 +17,13 @@ from __future__ import annotations
 
 import math
 
+from link.rotation import Mat9, quat_conjugate, quat_multiply, quat_to_matrix  # noqa: F401 (re-exported)
+
 Quat4 = tuple[float, float, float, float]
-Mat9 = tuple[float, float, float, float, float, float, float, float, float]
 
 # Below this angle (rad) Exp/Log use their Taylor series: sin(a/2)/a = 1/2 - a^2/48 + ..., whose
 # truncation error a^4/3840 is below double precision for a < 1e-4 (and well below at 1e-6).
 _SMALL_ANGLE_RAD = 1e-6
-
-
-def quat_multiply(a: Quat4, b: Quat4) -> Quat4:
-    """Hamilton product a (x) b."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-def quat_conjugate(q: Quat4) -> Quat4:
-    """Inverse of a unit quaternion."""
-    return (q[0], -q[1], -q[2], -q[3])
 
 
 def quat_normalise(q: Quat4) -> Quat4:
@@ -73,19 +57,6 @@ def quat_log(q: Quat4) -> tuple[float, float, float]:
         return (k * x, k * y, k * z)
     k = 2.0 * math.atan2(n, w) / n
     return (k * x, k * y, k * z)
-
-
-def quat_to_matrix(q: Quat4) -> Mat9:
-    """Row-major rotation matrix R(q) (body -> world) of a unit quaternion."""
-    w, x, y, z = q
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    return (
-        1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy),
-        2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx),
-        2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy),
-    )
 
 
 def rotate(r: Mat9, vx: float, vy: float, vz: float) -> tuple[float, float, float]:

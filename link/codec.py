@@ -89,6 +89,7 @@ from link.messages import (
     VehicleCommand,
     VehicleMode,
 )
+from link.rotation import quat_multiply
 from link.signing import SIGNATURE_BLOCK_LEN, SignatureCheck, Signing
 
 MAGIC_V2 = 0xFD
@@ -138,16 +139,7 @@ def flu_to_frd(v: Vec3) -> Vec3:
 frd_to_flu = flu_to_frd
 
 
-def quat_multiply(a: Quat, b: Quat) -> Quat:
-    """Hamilton product a * b of (w, x, y, z) quaternions."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
+
 
 
 # Rotation taking ENU coordinates to NED coordinates: R = [[0,1,0],[1,0,0],[0,0,-1]], the 180 deg turn

@@ -117,7 +117,8 @@ def parse_world(data: object, source: str = "<memory>") -> World:
             if lo > hi:
                 # Several course lab mazes list a thin wall with min and max swapped; the wall is real,
                 # so it is read as the box it describes (never silently dropped) and the user is told.
-                warnings.append(f"{source}: blocks[{i}].extents {axis} range inverted ({lo} > {hi}); read as {hi} .. {lo}")
+                warnings.append(f"{source}: blocks[{i}].extents {axis} range inverted ({lo} > {hi}); "
+                                f"read as {hi} .. {lo}")
         rows.append(np.concatenate([np.sort(pair) for pair in ext.reshape(3, 2)]))
         colors.append(block.get("color"))
     blocks = np.array(rows, float).reshape(-1, 6)

@@ -5,34 +5,18 @@ Gives out: products, rotated vectors, exponential-map and yaw conversions, as tu
 
 Why not scipy.spatial.transform.Rotation: it costs tens of microseconds per call on one rotation,
 and the emulator's budget is < 50 us for a whole physics step; the tests check these helpers against
-scipy. (simulator/ may not import groundstation.rotation, hence this separate copy.)
+scipy. The basics shared with every package (product, conjugate) come from link.rotation.
 """
 
 from __future__ import annotations
 
 import math
 
-Quat = tuple[float, float, float, float]
+from link.rotation import Quat, quat_conjugate, quat_multiply  # noqa: F401 (re-exported)
+
 Vec3 = tuple[float, float, float]
 
 IDENTITY: Quat = (1.0, 0.0, 0.0, 0.0)
-
-
-def quat_multiply(a: Quat, b: Quat) -> Quat:
-    """Hamilton product a (x) b: rotate by b first, then by a."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-def quat_conjugate(q: Quat) -> Quat:
-    """The inverse rotation of a unit quaternion."""
-    return (q[0], -q[1], -q[2], -q[3])
 
 
 def quat_norm(q: Quat) -> float:
