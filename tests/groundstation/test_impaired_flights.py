@@ -1,0 +1,64 @@
+"""Flights under impairment (issue 6, test 6): every lab maze completes in attitude mode with the `lab`
+and `harsh` radio profiles, and with 30 % i.i.d. loss on both directions (lockstep, seeded)."""
+
+import json
+import subprocess
+import sys
+import tomllib
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
+RADIO_DIR = Path(__file__).resolve().parents[2] / "simulator" / "params" / "radio"
+LAB_MAZES = tuple(sorted(p.stem for p in WORLDS.glob("test_lab_*.json")) +
+                  sorted(p.stem for p in WORLDS.glob("maze_20*.json"))) if WORLDS.is_dir() else ()
+PROFILES = ("lab", "harsh", "loss30")
+CONCURRENT_FLIGHTS = 3
+
+pytestmark = pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
+
+
+def loss30_profile(folder: Path) -> Path:
+    """The ideal profile with 30 % i.i.d. loss (each direction has its own channel)."""
+    text = (RADIO_DIR / "ideal.toml").read_text()
+    assert tomllib.loads(text)["loss"]["probability"] == 0.0
+    text = text.replace('name = "ideal"', 'name = "loss30"')
+    lines = text.splitlines()
+    in_loss = False
+    for i, line in enumerate(lines):
+        if line.strip().startswith("["):
+            in_loss = line.strip() == "[loss]"
+        elif in_loss and line.startswith("probability"):
+            lines[i] = "probability = 0.30"
+    path = folder / "loss30.toml"
+    path.write_text("\n".join(lines) + "\n")
+    assert tomllib.loads(path.read_text())["loss"]["probability"] == 0.30
+    return path
+
+
+def fly(world: str, radio: str, log: Path) -> tuple[dict | None, str]:
+    run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / f"{world}.json"), "--mode", "attitude",
+                          "--radio", radio, "--seed", "5", "--json", "--log", str(log)],
+                         capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
+    return (json.loads(run.stdout) if run.stdout.strip() else None), run.stderr[-1500:]
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    root = tmp_path_factory.mktemp("impaired")
+    radios = {"lab": "lab", "harsh": "harsh", "loss30": str(loss30_profile(root))}
+    cells = [(w, p) for w in LAB_MAZES for p in PROFILES]
+    with ThreadPoolExecutor(CONCURRENT_FLIGHTS) as pool:
+        futures = {c: pool.submit(fly, c[0], radios[c[1]], root / f"{c[0]}_{c[1]}") for c in cells}
+        return {c: f.result() for c, f in futures.items()}
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+@pytest.mark.parametrize("world", LAB_MAZES)
+def test_lab_maze_completes_in_attitude_mode_under_impairment(flights, world, profile):
+    summary, stderr = flights[(world, profile)]
+    assert summary is not None, stderr
+    assert summary["result"] == "reached_goal", (summary["result"], summary.get("failsafe_reason"))
+    assert not summary["collided"]
