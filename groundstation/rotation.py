@@ -16,21 +16,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from link.rotation import quat_to_matrix as rows_of_unit_quat
+
 Rows = tuple[float, float, float, float, float, float, float, float, float]
 
 
 def quat_to_rows(w: float, x: float, y: float, z: float) -> Rows:
     """Row-major entries of R(q) for a quaternion q = (w, x, y, z); q is normalised first."""
     n = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    return (
-        1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy),
-        2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx),
-        2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy),
-    )
+    return rows_of_unit_quat((w / n, x / n, y / n, z / n))
 
 
 def rows_to_quat(r00: float, r01: float, r02: float, r10: float, r11: float, r12: float,
