@@ -30,6 +30,15 @@ class TransportStats:
     bytes_received: int = 0
     send_errors: int = 0
 
+    def record_send(self, frame_len: int, ok: bool) -> bool:
+        """Count one send: a frame handed to the medium, or one the medium refused. Returns ok."""
+        if ok:
+            self.frames_sent += 1
+            self.bytes_sent += frame_len
+        else:
+            self.send_errors += 1
+        return ok
+
     def snapshot(self) -> TransportStats:
         return TransportStats(**vars(self))
 

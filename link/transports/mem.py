@@ -111,13 +111,10 @@ class MemTransport(Transport):
 
     def send(self, frame: bytes) -> bool:
         if not self.is_open:
-            self.stats.send_errors += 1
-            return False
+            return self.stats.record_send(len(frame), False)
         frame = bytes(frame)
         self._bus.publish(self.tx_channel, frame, sender=self)
-        self.stats.frames_sent += 1
-        self.stats.bytes_sent += len(frame)
-        return True
+        return self.stats.record_send(len(frame), True)
 
     def receive(self, timeout_s: float = 0.0) -> list[bytes]:
         if not self.is_open:

@@ -79,16 +79,12 @@ class SerialTransport(Transport):
 
     def send(self, frame: bytes) -> bool:
         if not self.is_open or self.device_lost:
-            self.stats.send_errors += 1
-            return False
+            return self.stats.record_send(len(frame), False)
         try:
             self._port.write(frame)
         except (serial.SerialException, OSError):  # write timeout (possibly partial) or device gone
-            self.stats.send_errors += 1
-            return False
-        self.stats.frames_sent += 1
-        self.stats.bytes_sent += len(frame)
-        return True
+            return self.stats.record_send(len(frame), False)
+        return self.stats.record_send(len(frame), True)
 
     def receive(self, timeout_s: float = 0.0) -> list[bytes]:
         if not self.is_open:

@@ -95,16 +95,12 @@ class _UdpTransport(Transport):
 
     def send(self, frame: bytes) -> bool:
         if not self.is_open or self.peer is None:
-            self.stats.send_errors += 1
-            return False
+            return self.stats.record_send(len(frame), False)
         try:
             self._sock.sendto(frame, self.peer)
         except OSError:  # EAGAIN with a full send buffer, ENETUNREACH, ...: the medium refused it
-            self.stats.send_errors += 1
-            return False
-        self.stats.frames_sent += 1
-        self.stats.bytes_sent += len(frame)
-        return True
+            return self.stats.record_send(len(frame), False)
+        return self.stats.record_send(len(frame), True)
 
     def receive(self, timeout_s: float = 0.0) -> list[bytes]:
         if not self.is_open:

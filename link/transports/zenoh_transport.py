@@ -234,16 +234,12 @@ class ZenohTransport(Transport):
 
     def send(self, frame: bytes) -> bool:
         if not self.is_open or self._publisher is None:
-            self.stats.send_errors += 1
-            return False
+            return self.stats.record_send(len(frame), False)
         try:
             self._publisher.put(bytes(frame))
         except zenoh.ZError:  # the session was closed under us
-            self.stats.send_errors += 1
-            return False
-        self.stats.frames_sent += 1
-        self.stats.bytes_sent += len(frame)
-        return True
+            return self.stats.record_send(len(frame), False)
+        return self.stats.record_send(len(frame), True)
 
     def receive(self, timeout_s: float = 0.0) -> list[bytes]:
         handler, waker = self._handler, self._waker
