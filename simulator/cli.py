@@ -48,24 +48,22 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _vehicle_count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} is not a vehicle count (1 or more)")
-    return value
+def _whole_number(minimum: int, meaning: str):
+    """An argparse type: a whole number >= minimum; `meaning` says what a smaller one would not be."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} {meaning}")
+        return value
+
+    return parse
 
 
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative (seeds are 0, 1, 2, ...)")
-    return value
+_vehicle_count = _whole_number(1, "is not a vehicle count (1 or more)")
+_seed = _whole_number(0, "is negative (seeds are 0, 1, 2, ...)")
 
 
 def _finite_float(text: str) -> float:
