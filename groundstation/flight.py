@@ -94,6 +94,7 @@ class FlightLoop:
         self.compensator = compensator
         self.health = LinkHealth()
         self.truth: TruthState | None = None
+        self.estimate = None  # the estimator's Estimate after this tick's samples (None before the first pose)
         self.record = FlightRecord()
         self.next_heartbeat_s = 0.0
         self.next_timesync_s = 0.0
@@ -127,6 +128,8 @@ class FlightLoop:
             if isinstance(rx.message, TruthState):
                 self.truth = rx.message
                 self.truth_history.append(rx.message)
+        # The filter changes only here: one estimate serves the view, the controller and the log row.
+        self.estimate = self.estimator.estimate() if self.estimator.initialised else None
 
     def _status(self, msg: BatteryStatus) -> None:
         previous = self.health.uplink_received
@@ -151,7 +154,7 @@ class FlightLoop:
             return None
         if self.compensator is not None and not self.health.rtt_s:
             return None  # compensating needs a latency estimate: stay connecting until TIMESYNC answers
-        est = self.estimator.estimate()
+        est = self.estimate
         downlink_age = now_s - (self.health.last_downlink_s or now_s)
         # "Unhealthy" for the mission means the filter itself is in trouble (its position uncertainty is
         # beyond its limit); a mocap blackout alone is handled by the mocap-age thresholds.
@@ -185,7 +188,7 @@ class FlightLoop:
         return None if not recent else float(np.median(recent)) / 2.0
 
     def control(self, now_s: float, step) -> tuple:
-        est = self.estimator.estimate()
+        est = self.estimate
         reference = step.reference
         latency = self.uplink_latency_s() if self.compensator is not None else None
         if latency is not None and step.phase in COMPENSATED_PHASES:
@@ -265,7 +268,7 @@ class FlightLoop:
         self.clock.done(now + self.period_s)
 
     def write_row(self, now: float, step, out) -> None:
-        est = self.estimator.estimate() if self.estimator.initialised else None
+        est = self.estimate
         truth = self.truth
         truth_vals = None
         if truth is not None:
