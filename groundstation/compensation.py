@@ -16,6 +16,8 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+import numpy as np
+
 from groundstation.controller import ControllerState
 from link.vehicle import GRAVITY_MPS2, Vehicle
 
@@ -34,8 +36,9 @@ class LatencyCompensator:
     def __init__(self, vehicle: Vehicle, mode: str, step_s: float):
         self.mode = mode
         self.step_s = step_s
-        self.m = vehicle.mass_kg
-        self.inertia = (vehicle.inertia_kgm2[0, 0], vehicle.inertia_kgm2[1, 1], vehicle.inertia_kgm2[2, 2])
+        self.m = float(vehicle.mass_kg)
+        # Python floats: arithmetic on numpy scalars is several times slower.
+        self.inertia = tuple(float(vehicle.inertia_kgm2[k, k]) for k in range(3))
         self.sent: deque[SentCommand] = deque()
 
     def record(self, sent_s: float, thrust_n: float, moment_flu_nm, attitude_wxyz) -> None:
@@ -45,51 +48,76 @@ class LatencyCompensator:
             self.sent.popleft()
 
     def predict(self, est, now_s: float, vehicle_minus_ground_s: float, uplink_latency_s: float) -> ControllerState:
-        """State at now + uplink latency, from the estimate at est.time_s (vehicle clock)."""
+        """State at now + uplink latency, from the estimate at est.time_s (vehicle clock).
+
+        Runs every control tick, a few model steps each: written on local floats (a numpy call on a
+        3-vector costs more than the step's arithmetic).
+        """
         t = est.time_s - vehicle_minus_ground_s  # the estimate's time on our clock
         t_act = now_s + uplink_latency_s
-        p = [float(v) for v in est.position_enu_m]
-        v = [float(x) for x in est.velocity_enu_mps]
-        q = [float(x) for x in est.attitude_wxyz]
-        w = [float(x) for x in est.rate_flu_radps]
+        px, py, pz = _floats(est.position_enu_m)
+        vx, vy, vz = _floats(est.velocity_enu_mps)
+        q = _floats(est.attitude_wxyz)
+        w = _floats(est.rate_flu_radps)
+        acting, pending = self._acting_and_pending(t, uplink_latency_s)
+        attitude_mode = self.mode == "attitude"
+        step_s, m = self.step_s, self.m
         while t < t_act - 1e-12:
-            dt = min(self.step_s, t_act - t)
-            command = self._acting_at(t, uplink_latency_s)
-            if command is not None:
-                p, v, q, w = self._step(p, v, q, w, command, dt)
-            else:  # nothing of ours acts yet: coast
-                p = [p[i] + v[i] * dt for i in range(3)]
+            dt = min(step_s, t_act - t)
+            for command in reversed(pending):  # the newest command that has reached the vehicle by t
+                if command.sent_s + uplink_latency_s <= t + 1e-12:
+                    acting = command
+                    break
+            if acting is None:  # nothing of ours acts yet: coast
+                px, py, pz = px + vx * dt, py + vy * dt, pz + vz * dt
+                t += dt
+                continue
+            if attitude_mode:
+                q = acting.attitude_wxyz
+                w = (0.0, 0.0, 0.0)
+            else:
+                w = self._rate_step(w, acting.moment_flu_nm, dt)
+                q = _integrate_quat(q, w, dt)
+            qw, qx, qy, qz = q
+            f = acting.thrust_n / m  # thrust acceleration along b3 = R e3
+            ax = f * (2.0 * (qx * qz + qw * qy))
+            ay = f * (2.0 * (qy * qz - qw * qx))
+            az = f * (1.0 - 2.0 * (qx * qx + qy * qy)) - GRAVITY_MPS2
+            half_dt2 = 0.5 * dt * dt
+            px, py, pz = px + dt * vx + half_dt2 * ax, py + dt * vy + half_dt2 * ay, pz + dt * vz + half_dt2 * az
+            vx, vy, vz = vx + dt * ax, vy + dt * ay, vz + dt * az
             t += dt
-        return ControllerState(position_enu_m=tuple(p), velocity_enu_mps=tuple(v), attitude_wxyz=tuple(q),
-                               rate_flu_radps=tuple(w))
+        return ControllerState(position_enu_m=(px, py, pz), velocity_enu_mps=(vx, vy, vz),
+                               attitude_wxyz=tuple(q), rate_flu_radps=tuple(w))
 
-    def _acting_at(self, t: float, uplink_latency_s: float) -> SentCommand | None:
-        """The newest command that has reached the vehicle by time t (our clock)."""
-        acting = None
+    def _acting_and_pending(self, t: float, uplink_latency_s: float) -> tuple[SentCommand | None, list[SentCommand]]:
+        """The newest command that has reached the vehicle by time t (our clock), and those sent after it.
+
+        A later time's acting command is the newest of the pending ones that has arrived by then, or else
+        still this one: so a prediction scans the history once, not once per step.
+        """
+        pending = []
         for command in reversed(self.sent):
             if command.sent_s + uplink_latency_s <= t + 1e-12:
-                acting = command
-                break
-        return acting
+                pending.reverse()
+                return command, pending
+            pending.append(command)
+        pending.reverse()
+        return None, pending
 
-    def _step(self, p, v, q, w, c: SentCommand, dt: float):
-        if self.mode == "attitude":
-            q = list(c.attitude_wxyz)
-            w = [0.0, 0.0, 0.0]
-        else:
-            ix, iy, iz = self.inertia
-            mx, my, mz = c.moment_flu_nm
-            wx, wy, wz = w
-            w = [wx + dt * (mx - (iz - iy) * wy * wz) / ix,
-                 wy + dt * (my - (ix - iz) * wz * wx) / iy,
-                 wz + dt * (mz - (iy - ix) * wx * wy) / iz]
-            q = _integrate_quat(q, w, dt)
-        qw, qx, qy, qz = q
-        b3 = (2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
-        a = [c.thrust_n / self.m * b3[0], c.thrust_n / self.m * b3[1], c.thrust_n / self.m * b3[2] - GRAVITY_MPS2]
-        p = [p[i] + dt * v[i] + 0.5 * dt * dt * a[i] for i in range(3)]
-        v = [v[i] + dt * a[i] for i in range(3)]
-        return p, v, q, w
+    def _rate_step(self, w, moment_flu_nm, dt: float) -> tuple[float, float, float]:
+        """Euler step of I w' = M - w x I w (diagonal I)."""
+        ix, iy, iz = self.inertia
+        mx, my, mz = moment_flu_nm
+        wx, wy, wz = w
+        return (wx + dt * (mx - (iz - iy) * wy * wz) / ix,
+                wy + dt * (my - (ix - iz) * wz * wx) / iy,
+                wz + dt * (mz - (iy - ix) * wx * wy) / iz)
+
+
+def _floats(v):
+    """A vector as a tuple or list of Python floats (numpy scalars make float arithmetic slower)."""
+    return v.tolist() if type(v) is np.ndarray else [float(x) for x in v]
 
 
 def _integrate_quat(q, w, dt: float):
@@ -101,7 +129,9 @@ def _integrate_quat(q, w, dt: float):
     s = math.sin(angle / 2.0) / (angle / dt)
     dw, dx, dy, dz = math.cos(angle / 2.0), wx * s, wy * s, wz * s
     qw, qx, qy, qz = q
-    out = [qw * dw - qx * dx - qy * dy - qz * dz, qw * dx + qx * dw + qy * dz - qz * dy,
-           qw * dy - qx * dz + qy * dw + qz * dx, qw * dz + qx * dy - qy * dx + qz * dw]
-    n = math.sqrt(sum(c * c for c in out))
-    return [c / n for c in out]
+    ow = qw * dw - qx * dx - qy * dy - qz * dz
+    ox = qw * dx + qx * dw + qy * dz - qz * dy
+    oy = qw * dy - qx * dz + qy * dw + qz * dx
+    oz = qw * dz + qx * dy - qy * dx + qz * dw
+    n = math.sqrt(ow * ow + ox * ox + oy * oy + oz * oz)
+    return (ow / n, ox / n, oy / n, oz / n)

@@ -30,7 +30,8 @@ w_z = psi_T' e3 . b3_des is its special case a_psi . b3_des = 0 (tilt only acros
 the twist about b3_des when tilting along the heading, which is large on a fast circle.
 
 The update runs at 500 Hz, so it is written on plain floats: a dozen small numpy operations would cost
-more than the whole computation (see benchmarks/controller_bench.py).
+more than the whole computation (see benchmarks/controller_bench.py). For the same reason the gains and
+limits are unpacked into float attributes once, at construction.
 """
 
 from __future__ import annotations
@@ -132,6 +133,11 @@ def _floats(v):
     return v.tolist() if type(v) is np.ndarray else v
 
 
+def _clip(value: float, low: float, high: float) -> float:
+    """value limited to [low, high]; NaN passes through (and is then flagged as saturated: NaN != NaN)."""
+    return high if value > high else low if value < low else value
+
+
 class SE3Controller:
     """The geometric controller of the lab report; `variant="full"` adds Lee et al.'s feed-forward."""
 
@@ -149,12 +155,13 @@ class SE3Controller:
         self._max_thrust_n = float(vehicle.max_thrust_n)
         self._max_moment_nm = tuple(np.asarray(vehicle.max_moment_nm, dtype=float).tolist())
         self._full = self.variant == "full"
+        self._position_gains = (*gains.kp, *gains.kd)
+        self._attitude_gains = (*gains.k_r, *gains.k_w)
 
     def update(self, state: ControllerState, ref: FlatOutput) -> ControlOutput:
         """One control step: thrust, moment and desired attitude for the current state and reference."""
         m = self.mass_kg
-        kpx, kpy, kpz = self.gains.kp
-        kdx, kdy, kdz = self.gains.kd
+        kpx, kpy, kpz, kdx, kdy, kdz = self._position_gains
         px, py, pz = _floats(state.position_enu_m)
         vx, vy, vz = _floats(state.velocity_enu_mps)
         tx, ty, tz = _floats(ref.position_m)
@@ -200,8 +207,7 @@ class SE3Controller:
         erx, ery, erz = 0.5 * (m21 - m12), 0.5 * (m02 - m20), 0.5 * (m10 - m01)
 
         wx, wy, wz = _floats(state.rate_flu_radps)
-        krx, kry, krz = self.gains.k_r
-        kwx, kwy, kwz = self.gains.k_w
+        krx, kry, krz, kwx, kwy, kwz = self._attitude_gains
         i00, i01, i02, i10, i11, i12, i20, i21, i22 = self._inertia
         if self._full and f_norm > _DEGENERATE_NORM and heading_norm > _DEGENERATE_NORM:
             wd, wdb, adb = self._feed_forward(
@@ -228,22 +234,13 @@ class SE3Controller:
         my = i10 * alx + i11 * aly + i12 * alz + gy
         mz = i20 * alx + i21 * aly + i22 * alz + gz
 
-        thrust_clipped = min(max(thrust, 0.0), self._max_thrust_n)
+        thrust_clipped = _clip(thrust, 0.0, self._max_thrust_n)
         lx, ly, lz = self._max_moment_nm
-        moment = (min(max(mx, -lx), lx), min(max(my, -ly), ly), min(max(mz, -lz), lz))
-        return ControlOutput(
-            thrust_n=thrust_clipped,
-            moment_flu_nm=moment,
-            attitude_des_wxyz=rows_to_quat(b1x, b2x, b3x, b1y, b2y, b3y, b1z, b2z, b3z),
-            rate_des_flu_radps=wd,
-            thrust_saturated=thrust_clipped != thrust,
-            moment_saturated=(moment[0] != mx, moment[1] != my, moment[2] != mz),
-            force_des_enu_n=(fx, fy, fz),
-            position_error_m=(epx, epy, epz),
-            velocity_error_mps=(evx, evy, evz),
-            e_R=(erx, ery, erz),
-            e_w=(ewx, ewy, ewz),
-        )
+        moment = (_clip(mx, -lx, lx), _clip(my, -ly, ly), _clip(mz, -lz, lz))
+        # Positional: keyword arguments make building this frozen dataclass a third slower.
+        return ControlOutput(thrust_clipped, moment, rows_to_quat(b1x, b2x, b3x, b1y, b2y, b3y, b1z, b2z, b3z),
+                             wd, thrust_clipped != thrust, (moment[0] != mx, moment[1] != my, moment[2] != mz),
+                             (fx, fy, fz), (epx, epy, epz), (evx, evy, evz), (erx, ery, erz), (ewx, ewy, ewz))
 
     @staticmethod
     def _feed_forward(ref: FlatOutput, m_over_f: float, heading: Vec3, b1: Vec3, b2: Vec3, b3: Vec3,

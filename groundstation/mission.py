@@ -4,6 +4,9 @@ Takes in: the time (s), the state estimate and its health, what the vehicle repo
 downlink age), the trajectory to track and mission parameters (params/mission.toml).
 Gives out: each tick, the phase, the reference to fly (a FlatOutput) or None (send nothing), and a
 vehicle command to send (arm, disarm) when one is due.
+
+update() runs every control tick (500 Hz): what does not change between ticks (the phase handlers, the
+phase sets, the goal as floats) is built once, and distances are taken on floats (math.dist), not numpy.
 """
 
 from __future__ import annotations
@@ -34,6 +37,12 @@ class Phase(Enum):
     DONE = "done"
     FAILSAFE_HOLD = "failsafe_hold"
     FAILSAFE_DESCENT = "failsafe_descent"
+
+
+# Phase sets the state machine tests every tick (tuples: `in` compares members by identity, no hashing).
+_NO_FAILSAFE_PHASES = (Phase.DONE, Phase.DISARM, Phase.CONNECT)  # nothing airborne to protect
+_NO_MOCAP_FAILSAFE_PHASES = (Phase.ARM, Phase.FAILSAFE_DESCENT)  # on the ground, or the vehicle lands itself
+_ABORTABLE_PHASES = (Phase.ARM, Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.HOVER)
 
 
 @dataclass(frozen=True)
@@ -116,6 +125,7 @@ class Mission:
         self.track = track
         self.ground_height = ground_height
         self.goal = np.asarray(goal_enu_m, float)
+        self._goal = self.goal.tolist()
         self.arrival_s = final_arrival_time(track, self.goal, params.goal_position_tolerance_m)
         self.phase = Phase.CONNECT
         self.phase_start_s = 0.0
@@ -172,19 +182,13 @@ class Mission:
         failsafe = self._check_failsafes(t, view)
         if failsafe is not None:
             return failsafe
-        if self.abort_requested and self.phase in (Phase.ARM, Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.HOVER):
+        if self.abort_requested and self.phase in _ABORTABLE_PHASES:
             self.result = self.result or "aborted"
             if self.phase == Phase.ARM or not view.armed:
                 self._enter(Phase.DISARM, t)
             else:
                 self._enter(Phase.LAND, t, self._descent(view, self.p.landing_speed_mps))
-        handler = {
-            Phase.ARM: self._arm, Phase.TAKEOFF: self._takeoff, Phase.SETTLE: self._settle,
-            Phase.TRACK: self._track, Phase.HOVER: self._hover, Phase.LAND: self._land,
-            Phase.DISARM: self._disarm, Phase.FAILSAFE_HOLD: self._failsafe_hold,
-            Phase.FAILSAFE_DESCENT: self._failsafe_descent,
-        }[self.phase]
-        return handler(t, view)
+        return self._HANDLERS[self.phase](self, t, view)
 
     def _connect(self, t: float, view: VehicleView | None) -> MissionStep:
         if view is not None:
@@ -280,20 +284,20 @@ class Mission:
     def _note_goal(self, t: float, view: VehicleView) -> None:
         if self.reached_goal_s is not None or t - self.track_start_s < self.arrival_s:
             return
-        near = np.linalg.norm(view.position_enu_m - self.goal) <= self.p.goal_position_tolerance_m
-        slow = np.linalg.norm(view.velocity_enu_mps) <= self.p.goal_speed_tolerance_mps
+        near = math.dist(view.position_enu_m, self._goal) <= self.p.goal_position_tolerance_m
+        slow = math.hypot(*view.velocity_enu_mps) <= self.p.goal_speed_tolerance_mps
         if near and slow:
             self.reached_goal_s = t
 
     def _check_failsafes(self, t: float, view: VehicleView) -> MissionStep | None:
-        if self.phase in (Phase.DONE, Phase.DISARM, Phase.CONNECT):
+        if self.phase in _NO_FAILSAFE_PHASES:
             return None
         if view.downlink_age_s > self.p.downlink_silent_after_s:
             self.result = "failsafe"
             self.failsafe_reason = f"downlink silent for {view.downlink_age_s:.2f} s"
             self._enter(Phase.DONE, t)
             return MissionStep(Phase.DONE, None)
-        if not view.armed or self.phase in (Phase.ARM, Phase.FAILSAFE_DESCENT):
+        if not view.armed or self.phase in _NO_MOCAP_FAILSAFE_PHASES:
             return None
         lost = view.mocap_age_s
         if lost > self.p.mocap_descend_after_s or not view.estimator_healthy:
@@ -309,6 +313,13 @@ class Mission:
             self._enter(Phase.FAILSAFE_HOLD, t, self._hold(view.position_enu_m, t))
             return MissionStep(self.phase, self._segment_ref(t))
         return None
+
+    # The handler of each phase after CONNECT (built once: a dict of bound methods per tick costs ~2 us).
+    _HANDLERS = {
+        Phase.ARM: _arm, Phase.TAKEOFF: _takeoff, Phase.SETTLE: _settle, Phase.TRACK: _track,
+        Phase.HOVER: _hover, Phase.LAND: _land, Phase.DISARM: _disarm, Phase.FAILSAFE_HOLD: _failsafe_hold,
+        Phase.FAILSAFE_DESCENT: _failsafe_descent,
+    }
 
 
 def final_arrival_time(track: Trajectory, goal: np.ndarray, tolerance_m: float, step_s: float = 0.01) -> float:

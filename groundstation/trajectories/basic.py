@@ -9,6 +9,10 @@ analytic velocity, acceleration, jerk and snap; they hold the start before t = 0
 Smooth profiles use the septic smoothstep s(tau) = 35 tau^4 - 84 tau^5 + 70 tau^6 - 20 tau^7 on [0, 1]:
 rest to rest with zero velocity, acceleration and jerk at both ends (the minimum-snap rest-to-rest
 polynomial). `Step` is deliberately not smooth: all derivatives zero, as in the report's tuning flights.
+
+sample() runs twice per control tick, so it works on Python floats with what does not change precomputed
+at construction (groundstation/trajectories/flat.py says why); numpy's Polynomial is used only to derive
+the coefficients, once.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from numpy.polynomial import Polynomial
 
+from groundstation.trajectories.flat import at_rest, flat_output, polyval
 from groundstation.trajectory import FlatOutput, Trajectory
 from link.config import Params, resolve
 from link.errors import UserError
@@ -31,6 +36,9 @@ _SMOOTHSTEP_DERIVATIVES = tuple(SMOOTHSTEP.deriv(k) if k else SMOOTHSTEP for k i
 _SMOOTHSTEP_INTEGRAL = SMOOTHSTEP.integ()
 # Peak of s' (at tau = 1/2): the ratio of peak to mean speed of a smoothstep move.
 SMOOTHSTEP_PEAK_RATE = float(_SMOOTHSTEP_DERIVATIVES[1](0.5))
+# The same as coefficient tuples (lowest power first) for polyval on floats.
+_SMOOTHSTEP_COEFFICIENTS = tuple(tuple(p.coef.tolist()) for p in _SMOOTHSTEP_DERIVATIVES)
+_SMOOTHSTEP_INTEGRAL_COEFFICIENTS = tuple(_SMOOTHSTEP_INTEGRAL.coef.tolist())
 
 AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -54,10 +62,6 @@ def _non_negative(value: float, what: str) -> float:
     return float(value)
 
 
-def _at_rest(position_m: np.ndarray, yaw_rad: float) -> FlatOutput:
-    return FlatOutput(position_m=position_m.copy(), yaw_rad=yaw_rad)
-
-
 class Hover:
     """Hold one position (world ENU, m) at yaw `yaw_rad` for `duration_s`."""
 
@@ -67,7 +71,7 @@ class Hover:
         self.yaw_rad = float(yaw_rad)
 
     def sample(self, t_s: float) -> FlatOutput:
-        return _at_rest(self.position_m, self.yaw_rad)
+        return at_rest(self.position_m, self.yaw_rad)
 
 
 class Line:
@@ -86,18 +90,24 @@ class Line:
         self.length_m = float(np.linalg.norm(self.end_m - self.start_m))
         self.move_s = SMOOTHSTEP_PEAK_RATE * self.length_m / self.speed_mps
         self.duration_s = self.move_s + _non_negative(hold_s, "line hold_s")
+        self._start = self.start_m.tolist()
+        self._delta = (self.end_m - self.start_m).tolist()
+        self._time_scales = tuple(self.move_s**k for k in range(5))  # T^k: s^(k)(t/T) / T^k
 
     def sample(self, t_s: float) -> FlatOutput:
-        if t_s <= 0.0 or self.move_s == 0.0:
-            return _at_rest(self.start_m if t_s <= 0.0 else self.end_m, self.yaw_rad)
-        if t_s >= self.move_s:
-            return _at_rest(self.end_m, self.yaw_rad)
-        tau = t_s / self.move_s
-        delta = self.end_m - self.start_m
-        d = [float(p(tau)) / self.move_s**k for k, p in enumerate(_SMOOTHSTEP_DERIVATIVES)]
-        return FlatOutput(position_m=self.start_m + d[0] * delta, velocity_mps=d[1] * delta,
-                          acceleration_mps2=d[2] * delta, jerk_mps3=d[3] * delta, snap_mps4=d[4] * delta,
-                          yaw_rad=self.yaw_rad)
+        move_s = self.move_s
+        if t_s <= 0.0 or move_s == 0.0:
+            return at_rest(self.start_m if t_s <= 0.0 else self.end_m, self.yaw_rad)
+        if t_s >= move_s:
+            return at_rest(self.end_m, self.yaw_rad)
+        tau = t_s / move_s
+        sx, sy, sz = self._start
+        dx, dy, dz = self._delta
+        d0, d1, d2, d3, d4 = (polyval(c, tau) / scale
+                              for c, scale in zip(_SMOOTHSTEP_COEFFICIENTS, self._time_scales, strict=True))
+        return flat_output([sx + d0 * dx, sy + d0 * dy, sz + d0 * dz, d1 * dx, d1 * dy, d1 * dz,
+                            d2 * dx, d2 * dy, d2 * dz, d3 * dx, d3 * dy, d3 * dz, d4 * dx, d4 * dy, d4 * dz],
+                           self.yaw_rad)
 
 
 class Circle:
@@ -129,34 +139,37 @@ class Circle:
         self.duration_s = self.total_angle_rad / self.rate_radps + self.spin_up_s
         self.start_angle_rad = float(start_angle_rad)
         self.yaw_rad = float(yaw_rad)
+        self._center = self.center_m.tolist()
 
     def angle_derivatives(self, t_s: float) -> tuple[float, float, float, float, float]:
         """theta and its first four time derivatives (rad, rad/s, ... rad/s^4) at t_s."""
         t = min(max(t_s, 0.0), self.duration_s)
         omega, ramp = self.rate_radps, self.spin_up_s
-        s = _SMOOTHSTEP_DERIVATIVES
+        s0, s1, s2, s3 = _SMOOTHSTEP_COEFFICIENTS[:4]
         if t < ramp:
             tau = t / ramp
-            return (omega * ramp * float(_SMOOTHSTEP_INTEGRAL(tau)), omega * float(s[0](tau)),
-                    omega * float(s[1](tau)) / ramp, omega * float(s[2](tau)) / ramp**2,
-                    omega * float(s[3](tau)) / ramp**3)
+            return (omega * ramp * polyval(_SMOOTHSTEP_INTEGRAL_COEFFICIENTS, tau), omega * polyval(s0, tau),
+                    omega * polyval(s1, tau) / ramp, omega * polyval(s2, tau) / ramp**2,
+                    omega * polyval(s3, tau) / ramp**3)
         if t > self.duration_s - ramp:  # mirror image of the spin-up: tau runs backwards
             tau = (self.duration_s - t) / ramp
-            return (self.total_angle_rad - omega * ramp * float(_SMOOTHSTEP_INTEGRAL(tau)),
-                    omega * float(s[0](tau)), -omega * float(s[1](tau)) / ramp,
-                    omega * float(s[2](tau)) / ramp**2, -omega * float(s[3](tau)) / ramp**3)
+            return (self.total_angle_rad - omega * ramp * polyval(_SMOOTHSTEP_INTEGRAL_COEFFICIENTS, tau),
+                    omega * polyval(s0, tau), -omega * polyval(s1, tau) / ramp,
+                    omega * polyval(s2, tau) / ramp**2, -omega * polyval(s3, tau) / ramp**3)
         return omega * (t - 0.5 * ramp), omega, 0.0, 0.0, 0.0
 
     def sample(self, t_s: float) -> FlatOutput:
         theta, d1, d2, d3, d4 = self.angle_derivatives(t_s)
-        z = self.radius_m * np.exp(1j * (theta + self.start_angle_rad))
-        factors = (1.0, 1j * d1, 1j * d2 - d1**2, 1j * d3 - 3.0 * d1 * d2 - 1j * d1**3,
-                   1j * d4 - 4.0 * d1 * d3 - 3.0 * d2**2 - 6j * d1**2 * d2 + d1**4)
-        planar = [f * z for f in factors]
-        vectors = [np.array([p.real, p.imag, 0.0]) for p in planar]
-        return FlatOutput(position_m=self.center_m + vectors[0], velocity_mps=vectors[1],
-                          acceleration_mps2=vectors[2], jerk_mps3=vectors[3], snap_mps4=vectors[4],
-                          yaw_rad=self.yaw_rad)
+        angle = theta + self.start_angle_rad
+        zr, zi = self.radius_m * math.cos(angle), self.radius_m * math.sin(angle)  # z = R e^{i angle}
+        # The factors f = a + i b of the docstring; each derivative is f z = (a zr - b zi) + i (a zi + b zr).
+        a2, b2 = -(d1**2), d2
+        a3, b3 = -(3.0 * d1 * d2), d3 - d1**3
+        a4, b4 = -(4.0 * d1 * d3) - 3.0 * d2**2 + d1**4, d4 - 6.0 * d1**2 * d2
+        cx, cy, cz = self._center
+        return flat_output([cx + zr, cy + zi, cz + 0.0, -d1 * zi, d1 * zr, 0.0,
+                            a2 * zr - b2 * zi, a2 * zi + b2 * zr, 0.0, a3 * zr - b3 * zi, a3 * zi + b3 * zr, 0.0,
+                            a4 * zr - b4 * zi, a4 * zi + b4 * zr, 0.0], self.yaw_rad)
 
 
 class Step:
@@ -184,7 +197,7 @@ class Step:
         self.yaw_rad = float(yaw_rad)
 
     def sample(self, t_s: float) -> FlatOutput:
-        return _at_rest(self.start_m if t_s < self.step_at_s else self.end_m, self.yaw_rad)
+        return at_rest(self.start_m if t_s < self.step_at_s else self.end_m, self.yaw_rad)
 
 
 @dataclass(frozen=True)

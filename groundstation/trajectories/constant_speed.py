@@ -18,6 +18,9 @@ continuous, the segment ends exactly at P_1, and the speed is v at the knot like
 The last segment is the mirror image: cruise at v, then decelerate linearly to rest exactly at the goal.
 A single segment gets the factor once and both ramps, each over tau = (k - 1) |P_1 - P_0| / v (T/3).
 This needs 1 <= k <= 2 (k = 1: no ramp, the report's plain constant speed).
+
+sample() runs twice per control tick: it works on per-segment floats precomputed at construction
+(groundstation/trajectories/flat.py says why).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from groundstation.planning import load_planning_params
+from groundstation.trajectories.flat import at_rest
 from groundstation.trajectory import FlatOutput
 from link.config import Params
 from link.errors import UserError
@@ -86,6 +90,10 @@ class ConstantSpeedTrajectory:
         self.knot_times_s = np.r_[0.0, np.cumsum(self.segment_times_s)]
         self.duration_s = float(self.knot_times_s[-1])
         self._knots = self.knot_times_s.tolist()
+        # Per segment, as floats: start point, direction, length, time, ramp-in and ramp-out times.
+        self._segments = list(zip(points[:-1].tolist(), self.directions.tolist(), self.lengths_m.tolist(),
+                                  self.segment_times_s.tolist(), self.ramp_in_s.tolist(), self.ramp_out_s.tolist(),
+                                  strict=True))
 
     @staticmethod
     def from_path(
@@ -98,28 +106,28 @@ class ConstantSpeedTrajectory:
         )
 
     def sample(self, t_s: float) -> FlatOutput:
-        n = len(self.lengths_m)
+        n = len(self._segments)
         if n == 0 or t_s <= 0.0:
-            return FlatOutput(position_m=self.waypoints_m[0].copy())
+            return at_rest(self.waypoints_m[0])
         if t_s >= self.duration_s:
-            return FlatOutput(position_m=self.waypoints_m[-1].copy())
+            return at_rest(self.waypoints_m[-1])
         i = min(bisect.bisect_right(self._knots, t_s) - 1, n - 1)
-        distance, speed = self._along(i, t_s - self._knots[i])
-        return FlatOutput(
-            position_m=self.waypoints_m[i] + distance * self.directions[i],
-            velocity_mps=speed * self.directions[i],
-        )
+        (px, py, pz), (lx, ly, lz), length, duration, ramp_in, ramp_out = self._segments[i]
+        distance, speed = _along(self.speed_mps, length, duration, ramp_in, ramp_out, t_s - self._knots[i])
+        zeros = np.zeros
+        return FlatOutput(np.array([px + distance * lx, py + distance * ly, pz + distance * lz]),
+                          np.array([speed * lx, speed * ly, speed * lz]), zeros(3), zeros(3), zeros(3))
 
-    def _along(self, i: int, s: float) -> tuple[float, float]:
-        """Distance (m) covered and speed (m/s) at time s into segment i."""
-        v, duration = self.speed_mps, self.segment_times_s[i]
-        ramp_in, ramp_out = self.ramp_in_s[i], self.ramp_out_s[i]
-        if s < ramp_in:  # accelerating from rest: v(s) = v s / tau
-            return v * s * s / (2.0 * ramp_in), v * s / ramp_in
-        remaining = duration - s
-        if remaining < ramp_out:  # decelerating to rest at the segment end
-            return self.lengths_m[i] - v * remaining * remaining / (2.0 * ramp_out), v * remaining / ramp_out
-        return v * (ramp_in / 2.0 + s - ramp_in), v
+
+def _along(v: float, length: float, duration: float, ramp_in: float, ramp_out: float, s: float
+           ) -> tuple[float, float]:
+    """Distance (m) covered and speed (m/s) at time s into a segment (length m, duration s, ramp times s)."""
+    if s < ramp_in:  # accelerating from rest: v(s) = v s / tau
+        return v * s * s / (2.0 * ramp_in), v * s / ramp_in
+    remaining = duration - s
+    if remaining < ramp_out:  # decelerating to rest at the segment end
+        return length - v * remaining * remaining / (2.0 * ramp_out), v * remaining / ramp_out
+    return v * (ramp_in / 2.0 + s - ramp_in), v
 
 
 def _timing(lengths: np.ndarray, v: float, k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -49,6 +49,7 @@ import scipy.optimize
 from groundstation.planning import load_planning_params
 from groundstation.planning.occupancy import segments_clearance
 from groundstation.planning.pruning import prune_waypoints
+from groundstation.trajectories.flat import at_rest
 from groundstation.trajectory import FlatOutput
 from link.config import Params
 from link.errors import UserError
@@ -126,7 +127,11 @@ class MinSnapSettings:
 
 
 class MinSnapTrajectory:
-    """Piecewise degree-7 polynomial reference; sample() costs one small matrix-vector product."""
+    """Piecewise degree-7 polynomial reference; sample() costs one small matrix-vector product.
+
+    sample() runs twice per control tick: the powers of tau are float products, and one (15, 8) table per
+    segment (rows: position, velocity, ..., snap, each x, y, z) maps them to all 15 numbers in one dot.
+    """
 
     def __init__(self, waypoints_m: np.ndarray, segment_times_s: np.ndarray, coefficients: np.ndarray):
         self.waypoints_m = waypoints_m  # (K, 3)
@@ -144,22 +149,21 @@ class MinSnapTrajectory:
             )
             shifted[:, r] /= segment_times_s[:, None, None] ** r
         self._table = shifted
+        self._rows = [np.ascontiguousarray(table.reshape(15, N_COEF)) for table in shifted]
+        self._times = segment_times_s.tolist()
 
     def sample(self, t_s: float) -> FlatOutput:
         if t_s <= 0.0 or self.duration_s == 0.0:
-            return FlatOutput(position_m=self.waypoints_m[0].copy())
+            return at_rest(self.waypoints_m[0])
         if t_s >= self.duration_s:
-            return FlatOutput(position_m=self.waypoints_m[-1].copy())
-        i = min(bisect.bisect_right(self._knots, t_s) - 1, len(self.segment_times_s) - 1)
-        tau = (t_s - self._knots[i]) / self.segment_times_s[i]
-        out = self._table[i] @ (tau**_POWERS)  # (5, 3)
-        return FlatOutput(
-            position_m=out[0],
-            velocity_mps=out[1],
-            acceleration_mps2=out[2],
-            jerk_mps3=out[3],
-            snap_mps4=out[4],
-        )
+            return at_rest(self.waypoints_m[-1])
+        i = min(bisect.bisect_right(self._knots, t_s) - 1, len(self._times) - 1)
+        tau = (t_s - self._knots[i]) / self._times[i]
+        tau2 = tau * tau
+        tau3 = tau2 * tau
+        tau4 = tau2 * tau2
+        out = self._rows[i].dot(np.array([1.0, tau, tau2, tau3, tau4, tau4 * tau, tau3 * tau3, tau4 * tau3]))
+        return FlatOutput(out[0:3], out[3:6], out[6:9], out[9:12], out[12:15])
 
     def evaluate(self, t_s: np.ndarray) -> np.ndarray:
         """Vectorised: (5, S, 3) position, velocity, acceleration, jerk, snap at times t_s (S,)."""

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from numpy.polynomial import polynomial
 
 from groundstation.trajectories.basic import (
     Circle,
@@ -15,6 +16,7 @@ from groundstation.trajectories.basic import (
     load_trajectory_params,
     make_builtin,
 )
+from groundstation.trajectories.flat import polyval
 from link.errors import ConfigError, UserError
 
 START = np.array([0.3, -0.2, 0.9])
@@ -169,3 +171,32 @@ def test_bad_arguments_are_refused():
         Line([0, 0], [1, 0, 0])
     with pytest.raises(UserError, match="speed_mps"):
         Line(START, START + 1, speed_mps=0.0)
+
+
+def assert_samples_are_fresh_arrays(trajectory, times):
+    """Each sample's five vectors are its own: changing them in place changes nothing else."""
+    for t in times:
+        first, again = derivatives(trajectory, t), derivatives(trajectory, t)
+        for k, vector in enumerate(first):
+            assert isinstance(vector, np.ndarray) and vector.shape == (3,) and vector.dtype == float
+            vector += 1000.0 * (k + 1)
+        for k, vector in enumerate(first):
+            np.testing.assert_array_equal(vector, again[k] + 1000.0 * (k + 1), err_msg=f"{FIELDS[k]} at t={t}")
+        np.testing.assert_array_equal(derivatives(trajectory, t), again)
+
+
+def test_samples_are_fresh_arrays_the_caller_may_keep_or_modify():
+    times = (-1.0, 0.3, 2.0, 50.0)
+    for trajectory in (Hover(START, 3.0), Line(START, START + [1.0, 0.5, 0.0]),
+                       Circle(START, 0.5, 0.5, spin_up_s=1.0), Step(START, "x", 0.5, 1.0, 1.0)):
+        assert_samples_are_fresh_arrays(trajectory, times)
+
+
+def test_polyval_is_the_polynomial_sum():
+    rng = np.random.default_rng(3)
+    for degree in (0, 1, 7):
+        coefficients = rng.normal(size=degree + 1).tolist()
+        for x in (-1.3, 0.0, 0.4, 2.0):
+            expected = sum(c * x**k for k, c in enumerate(coefficients))
+            assert polyval(coefficients, x) == pytest.approx(expected, rel=1e-12, abs=1e-12)
+            assert polyval(coefficients, x) == polynomial.polyval(x, coefficients)  # same Horner steps

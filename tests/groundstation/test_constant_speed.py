@@ -121,3 +121,18 @@ def test_from_path_downsamples_then_times():
 def test_bad_settings_are_user_errors(speed, factor):
     with pytest.raises(UserError):
         ConstantSpeedTrajectory(WAYPOINTS, speed, factor)
+
+
+def test_samples_are_fresh_arrays_the_caller_may_modify():
+    traj = ConstantSpeedTrajectory(WAYPOINTS, 1.0, 1.5)
+    for t in (-1.0, 0.5, traj.duration_s / 2, traj.duration_s + 1.0):
+        out = traj.sample(t)
+        vectors = [out.position_m, out.velocity_mps, out.acceleration_mps2, out.jerk_mps3, out.snap_mps4]
+        expected = [v.copy() for v in vectors]
+        for k, v in enumerate(vectors):
+            v += 100.0 * (k + 1)
+        for k, v in enumerate(vectors):  # each vector changed by its own offset only: no shared memory
+            np.testing.assert_array_equal(v, expected[k] + 100.0 * (k + 1))
+        again = traj.sample(t)
+        np.testing.assert_array_equal(again.position_m, expected[0])
+        np.testing.assert_array_equal(again.velocity_mps, expected[1])

@@ -1,14 +1,16 @@
-"""The geometric controller against its defining equations, rotation identities and closed-loop physics."""
+"""The geometric controller against its defining equations, rotation identities and closed-loop physics;
+the latency compensator's state prediction (the controller's input) against closed-form motion."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from groundstation.compensation import LatencyCompensator
 from groundstation.controller import ControllerState, Gains, SE3Controller, load_gains
 from groundstation.rotation import hat, matrix_to_quat, quat_to_matrix, rot_x, rot_y, rot_z, vee
 from groundstation.trajectories.basic import Circle, Step
@@ -301,3 +303,71 @@ def test_gains_dataclass_can_be_built_directly():
     gains = Gains(kp=(1.0, 1.0, 1.0), kd=(2.0, 2.0, 2.0), k_r=(100.0, 100.0, 50.0), k_w=(20.0, 20.0, 10.0))
     out = SE3Controller(VEHICLE, gains).update(at_rest(HOME, velocity=(0.1, 0, 0)), hold(HOME))
     assert out.force_des_enu_n[0] == pytest.approx(-VEHICLE.mass_kg * 2.0 * 0.1)
+
+
+# --- latency compensation (groundstation/compensation.py): predictions against closed-form motion -------
+
+@dataclass
+class Estimate:
+    """The fields of an estimator.Estimate the compensator reads."""
+
+    time_s: float
+    position_enu_m: np.ndarray
+    velocity_enu_mps: np.ndarray
+    attitude_wxyz: np.ndarray
+    rate_flu_radps: np.ndarray
+
+
+STEP_S = 0.002
+
+
+def test_prediction_coasts_while_no_command_of_ours_acts():
+    compensator = LatencyCompensator(VEHICLE, "moments", STEP_S)
+    q = matrix_to_quat(rot_x(0.3))
+    est = Estimate(1.0, np.array([0.1, 0.2, 1.0]), np.array([0.5, -0.2, 0.1]), q, np.array([0.1, 0.0, 0.2]))
+    # the estimate is 5 ms old on our clock (offset 0.25 s), and the command will act 7 ms from now
+    state = compensator.predict(est, now_s=0.755, vehicle_minus_ground_s=0.25, uplink_latency_s=0.007)
+    np.testing.assert_allclose(state.position_enu_m, est.position_enu_m + 0.012 * est.velocity_enu_mps,
+                               rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(state.velocity_enu_mps, est.velocity_enu_mps)
+    np.testing.assert_array_equal(state.attitude_wxyz, q)
+    np.testing.assert_array_equal(state.rate_flu_radps, est.rate_flu_radps)
+
+
+def test_attitude_mode_prediction_applies_the_newest_arrived_command_from_its_arrival():
+    # Two commands: A (tilted, 1.3 x hover thrust) arrives at 4 ms, B (level, hover thrust) at 8 ms; the
+    # prediction runs from the estimate at 0 to the moment the next command acts, 12 ms. Acceleration is
+    # piecewise constant: 0 (coast) until A, a_A = T_A/m R_A e3 - g e3 until B, then 0.
+    m, g, latency = VEHICLE.mass_kg, GRAVITY_MPS2, 0.004
+    tilt = rot_x(0.2) @ rot_y(-0.1)
+    compensator = LatencyCompensator(VEHICLE, "attitude", STEP_S)
+    compensator.record(-0.5, m * g, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))  # acting long before: level hover
+    compensator.record(0.0, 1.3 * m * g, (0.0, 0.0, 0.0), matrix_to_quat(tilt))
+    compensator.record(0.004, m * g, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
+    p0, v0 = np.array([0.0, 0.0, 1.0]), np.array([0.3, 0.0, 0.0])
+    est = Estimate(0.0, p0, v0, matrix_to_quat(LEVEL), np.array([0.5, 0.5, 0.0]))
+    state = compensator.predict(est, now_s=0.008, vehicle_minus_ground_s=0.0, uplink_latency_s=latency)
+    a_tilted = 1.3 * g * tilt[:, 2] - [0.0, 0.0, g]
+    # 0..4 ms: the old level hover command acts (zero acceleration); 4..8 ms: A; 8..12 ms: B (level again)
+    v_expected = v0 + 0.004 * a_tilted
+    p_expected = p0 + v0 * 0.012 + 0.5 * a_tilted * 0.004**2 + a_tilted * 0.004 * 0.004
+    np.testing.assert_allclose(state.velocity_enu_mps, v_expected, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(state.position_enu_m, p_expected, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(state.attitude_wxyz, (1.0, 0.0, 0.0, 0.0), atol=1e-15)  # B's attitude
+    assert state.rate_flu_radps == (0.0, 0.0, 0.0)  # the onboard loop holds the commanded attitude
+
+
+def test_moments_mode_prediction_spins_up_under_a_yaw_moment():
+    # From level rest with hover thrust and a yaw moment M_z: w_z = (M_z / I_zz) t (no gyroscopic term about
+    # a single axis), the yaw angle sum_k w_z(t_k) dt -> (M_z / I_zz) t^2 / 2, and the thrust stays vertical.
+    m, g, izz, moment = VEHICLE.mass_kg, GRAVITY_MPS2, float(VEHICLE.inertia_kgm2[2, 2]), 1e-4
+    compensator = LatencyCompensator(VEHICLE, "moments", STEP_S)
+    compensator.record(-1.0, m * g, (0.0, 0.0, moment), (1.0, 0.0, 0.0, 0.0))
+    est = Estimate(0.0, np.array([0.0, 0.0, 1.0]), np.zeros(3), matrix_to_quat(LEVEL), np.zeros(3))
+    state = compensator.predict(est, now_s=0.0, vehicle_minus_ground_s=0.0, uplink_latency_s=0.02)
+    steps, alpha = 10, moment / izz
+    np.testing.assert_allclose(state.rate_flu_radps, (0.0, 0.0, alpha * 0.02), rtol=1e-12, atol=1e-15)
+    yaw = 2.0 * math.atan2(state.attitude_wxyz[3], state.attitude_wxyz[0])
+    assert yaw == pytest.approx(alpha * STEP_S**2 * steps * (steps + 1) / 2, rel=1e-9)  # the rate after each step
+    np.testing.assert_allclose(state.position_enu_m, (0.0, 0.0, 1.0), atol=1e-15)
+    np.testing.assert_allclose(state.velocity_enu_mps, 0.0, atol=1e-15)

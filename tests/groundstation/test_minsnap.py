@@ -126,6 +126,19 @@ def test_sample_agrees_with_vectorised_evaluation_and_finite_differences():
             )
 
 
+def test_samples_are_fresh_arrays_the_caller_may_modify():
+    traj = min_snap_through(WAYPOINTS, settings())
+    for t in (-1.0, 0.7, traj.duration_s / 2, traj.duration_s + 1.0):
+        out = traj.sample(t)
+        vectors = [out.position_m, out.velocity_mps, out.acceleration_mps2, out.jerk_mps3, out.snap_mps4]
+        expected = [v.copy() for v in vectors]
+        for k, v in enumerate(vectors):
+            v += 100.0 * (k + 1)
+        for k, v in enumerate(vectors):  # each vector changed by its own offset only: no shared memory
+            np.testing.assert_array_equal(v, expected[k] + 100.0 * (k + 1))
+        np.testing.assert_array_equal(traj.sample(t).position_m, expected[0])
+
+
 def test_gradient_of_the_snap_cost_matches_finite_differences():
     times = np.array([1.2, 0.9, 1.5, 1.0, 1.3])
     _, gradient = snap_cost_and_gradient(solve_coefficients(WAYPOINTS, times), times)
