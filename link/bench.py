@@ -21,6 +21,19 @@ Measured:
 Targets (issue "The link", section Numbers): the full zenoh link adds at most 50 % to the bare zenoh
 round trip (p50 ratio <= 1.5); full zenoh link throughput >= 20 000 frames/s.
 
+Reading the ratios (measured on the shared 2-vCPU VM this project runs on, load 4-8): a round trip's
+p50 depends steeply on the turnaround, the time a process takes from a frame's arrival to its next send.
+Bare zenoh with a busy spin of D us inserted after every receive on both ends, p50 in one run each:
+D = 0: 136-158 us, 1: 167-185, 3: 163-185, 5: 167-196, 12: 182-217, 20: 207-230, 45: 265-288 (3 runs):
+a step of 25-30 us as soon as the turnaround exceeds 1-2 us, then ~1.2 us per us. The bare rows turn
+around in ~2 us and sit below the step (their p50 itself swings between ~90 and ~230 us from run to run);
+every layer that does anything per frame is past it. And right after a wake-up the per-frame Python runs
+3-7x slower than in a hot loop (cold caches; spinning before it does not help): FrameParser.feed of one
+ThrustMoment frame takes 10-12 us in the echo process right after the frame arrives (2.5-3 us hot),
+Codec.encode of an ImuSample 4-6 us (1.1 us hot). The full link turns around in ~20-25 us on each end,
+so it sits 75-100 us above bare whatever bare is: ratio 1.4-1.65 in runs where bare took 150-230 us,
+1.7-2.2 where it took 90-130 us.
+
 Method: the round-trip paths run in interleaved blocks (every path once per block), each block after a
 warm-up, so that load from other processes on a shared machine hits every path alike and the ratios
 stay meaningful; the p50 and p99 are over all blocks' samples. The child is driven through its
@@ -344,17 +357,27 @@ def _sink_bare(pipe, phase: int, expected: int) -> str:
 
 
 def _echo_link(endpoint: Endpoint, phase: int) -> str:
-    reply, handled, idle_since = _template(ImuSample), 0, time.monotonic()
-    while time.monotonic() - idle_since < PHASE_IDLE_LIMIT_S:
-        for received in endpoint.receive(POLL_S):
-            idle_since = time.monotonic()
-            message = received.message
+    """Answer each ThrustMoment with an ImuSample. Like _echo_bare, nothing but the link runs between a
+    frame's arrival and the reply, nor between the reply and the next wait: the clock is read only
+    when a wait ends empty (to give up after PHASE_IDLE_LIMIT_S without frames)."""
+    reply, handled, idle_since = _template(ImuSample), 0, None
+    while True:
+        received = endpoint.receive(POLL_S)
+        if not received:
+            now = time.monotonic()
+            if idle_since is None:
+                idle_since = now - POLL_S
+            elif now - idle_since >= PHASE_IDLE_LIMIT_S:
+                return f"done {handled}"
+            continue
+        idle_since = None
+        for item in received:
+            message = item.message
             if type(message) is ThrustMoment:
                 endpoint.send(ImuSample(message.time_s, reply.specific_force_flu_mps2, reply.rate_flu_radps))
                 handled += 1
             elif _is_stop(message, phase):
                 return f"done {handled}"
-    return f"done {handled}"
 
 
 def _sink_link(endpoint: Endpoint, phase: int, expected: int) -> str:
@@ -529,15 +552,17 @@ class _LinkDriver:
 
     def round_trip(self) -> bool:
         self.stamp_us += 1
-        stamp_us = self.stamp_us
+        stamp_s = self.stamp_us / 1e6  # what the reply's time decodes to (whole microseconds on the wire)
         command = self.command
-        self.endpoint.send(ThrustMoment(stamp_us * 1e-6, command.thrust_n, command.moment_flu_nm))
-        deadline = time.monotonic() + REPLY_TIMEOUT_S
-        while (remaining := deadline - time.monotonic()) > 0:
+        self.endpoint.send(ThrustMoment(stamp_s, command.thrust_n, command.moment_flu_nm))
+        deadline = time.monotonic() + REPLY_TIMEOUT_S  # after the send: off the way from reply to command
+        remaining = REPLY_TIMEOUT_S
+        while remaining > 0:
             for received in self.endpoint.receive(remaining):
                 message = received.message
-                if type(message) is ImuSample and round(message.time_s * 1e6) == stamp_us:
+                if type(message) is ImuSample and message.time_s == stamp_s:
                     return True
+            remaining = deadline - time.monotonic()
         return False
 
     def stream(self, messages: list[Message]) -> None:

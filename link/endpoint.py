@@ -56,7 +56,11 @@ class Endpoint:
     def send(self, msg: Message, target_system: int = 0) -> bytes:
         """Encode and send one message; returns the frame (also when the transport refused it)."""
         frame = self.codec.encode(msg, target_system)
-        self.send_frame(frame)
+        # send_frame(frame), inline: one call less between the message and the medium
+        ok = self.transport.send(frame)
+        self.stats.record_sent(len(frame), ok)
+        if ok and self.tlog is not None:
+            self.tlog.write(frame)
         return frame
 
     def send_frame(self, frame: bytes) -> bool:
@@ -73,26 +77,21 @@ class Endpoint:
         if not chunks:
             return []
         received_s = self.clock()
-        feed = self.parser.feed
+        decode = self.parser.feed_fields  # tuples, not Decoded records: each frame becomes a Received here
         final = self.datagram
-        record = self.stats.record_received
+        record = self.stats.record_frame
         tlog = self.tlog
         out: list[Received] = []
         for chunk in chunks:
-            for decoded in feed(chunk, final):
-                message = decoded.message
-                verdict = record(decoded, received_s, getattr(message, "time_s", None))
+            for message, system_id, component_id, sequence, msgid, signed, frame, target, _ in decode(chunk, final):
+                verdict = record(system_id, component_id, sequence, len(frame), received_s,
+                                 getattr(message, "time_s", None))
                 if tlog is not None:
-                    tlog.write(decoded.frame)
-                extra = {
-                    "component_id": decoded.component_id,
-                    "target_system": decoded.target_system,
-                    "msgid": decoded.msgid,
-                }
+                    tlog.write(frame)
+                extra = {"component_id": component_id, "target_system": target, "msgid": msgid}
                 if verdict != "new":
                     extra["sequence"] = verdict
-                out.append(Received(message, decoded.system_id, decoded.sequence, received_s,
-                                    decoded.signed, extra))
+                out.append(Received(message, system_id, sequence, received_s, signed, extra))
         return out
 
     def close(self) -> None:

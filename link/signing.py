@@ -45,6 +45,7 @@ MAVLINK_EPOCH_UNIX_S = 1_420_070_400  # 2015-01-01T00:00:00Z, the origin of sign
 TIMESTAMP_UNITS_PER_S = 100_000  # signing timestamps count 10 us units
 NEW_STREAM_WINDOW_S = 60.0  # mavlink.io: a new stream may lag our clock by at most one minute
 _TIMESTAMP_MAX = (1 << 48) - 1
+_STAMP = struct.Struct("<Q")  # the 6-byte timestamp is the low bytes of this
 
 
 class SignatureCheck(Enum):
@@ -105,7 +106,7 @@ class Signing:
 
     def signature_block(self, unsigned_frame: bytes | bytearray) -> bytes:
         """The 13 bytes to append to a frame (header with flag 0x01 set, payload, crc)."""
-        tail = self._link_byte + struct.pack("<Q", self.next_timestamp())[:6]
+        tail = self._link_byte + _STAMP.pack(self.next_timestamp())[:6]
         digest = hashlib.sha256(self._key + unsigned_frame + tail).digest()
         return tail + digest[:6]
 

@@ -46,32 +46,36 @@ class SequenceTracker:
         self.duplicates = 0
         self.reordered = 0
         self.unique = 0
-        # stream -> [newest unwrapped sequence, missing set, missing in order (lazy deletes)]
-        self._streams: dict[tuple[int, int], list] = {}
+        # stream key (system id * 256 + component id, both 8-bit) ->
+        # [newest unwrapped sequence, missing set, missing in order (lazy deletes)]
+        self._streams: dict[int, list] = {}
 
     def observe(self, system_id: int, component_id: int, sequence: int) -> str:
         """Record one frame; returns "new", "late" (filled a gap), or "duplicate"."""
-        key = (system_id, component_id)
+        key = (system_id << 8) | component_id  # an int key: no tuple to build per frame
         stream = self._streams.get(key)
         if stream is None:
             self._streams[key] = [sequence, set(), deque()]
             self.unique += 1
             return "new"
-        newest, missing, order = stream
+        newest = stream[0]
         delta = (sequence - newest + REORDER_WINDOW) % SEQUENCE_MODULUS - REORDER_WINDOW
         if delta > 0:
             unwrapped = newest + delta
+            stream[0] = unwrapped
+            order = stream[2]
             if delta > 1:
                 gap = range(newest + 1, unwrapped)
-                missing.update(gap)
+                stream[1].update(gap)
                 order.extend(gap)
                 self.lost += delta - 1
-            stream[0] = unwrapped
-            horizon = unwrapped - REORDER_WINDOW
-            while order and order[0] < horizon:  # too old to come back: stays lost
-                missing.discard(order.popleft())
+            if order:
+                horizon = unwrapped - REORDER_WINDOW
+                while order and order[0] < horizon:  # too old to come back: stays lost
+                    stream[1].discard(order.popleft())
             self.unique += 1
             return "new"
+        missing = stream[1]
         unwrapped = newest + delta
         if delta < 0 and unwrapped in missing:
             missing.discard(unwrapped)
@@ -175,13 +179,21 @@ class LinkStats:
     def record_received(self, decoded, received_s: float, sample_time_s: float | None = None) -> str:
         """Record a delivered frame (a codec.Decoded); returns its sequence verdict ("new", "late",
         "duplicate"). With a sample time and a usable clock offset, records the frame's one-way age."""
+        return self.record_frame(decoded.system_id, decoded.component_id, decoded.sequence, len(decoded.frame),
+                                 received_s, sample_time_s)
+
+    def record_frame(self, system_id: int, component_id: int, sequence: int, frame_len: int,
+                     received_s: float, sample_time_s: float | None = None) -> str:
+        """record_received from the frame's header fields and length (no Decoded record needed)."""
         self.rx_frames += 1
-        self.rx_frame_bytes += len(decoded.frame)
+        self.rx_frame_bytes += frame_len
         if sample_time_s is not None:
-            offset = self.clock_offset_s
+            offset = self._offset_estimate  # clock_offset_s, read without the property call (per frame)
+            if offset is None and self.shared_clock:
+                offset = 0.0
             if offset is not None:
                 self.age_s.append(received_s - sample_time_s - offset)
-        return self.sequences.observe(decoded.system_id, decoded.component_id, decoded.sequence)
+        return self.sequences.observe(system_id, component_id, sequence)
 
     def record_undelivered(self, system_id: int, component_id: int, sequence: int) -> None:
         self.sequences.observe(system_id, component_id, sequence)

@@ -3,6 +3,7 @@ round trips of every field of every message, interoperability with pymavlink, pa
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import struct
 
@@ -14,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from link.codec import (
     ActuatorLimits,
     Codec,
+    Decoded,
     FrameParser,
     enu_to_ned,
     flu_to_frd,
@@ -36,6 +38,7 @@ from link.messages import (
     VehicleCommand,
     VehicleMode,
 )
+from link.signing import Signing
 from link.vehicle import GRAVITY_MPS2, load_vehicle
 
 LIMITS = ActuatorLimits(0.6, (0.01, 0.012, 0.002))
@@ -503,3 +506,29 @@ def test_measure_codec_costs_reports_every_message():
     assert set(costs) == {type(m).__name__ for m in sample_messages()}
     assert all(e > 0 and d > 0 for e, d in costs.values())
     assert set(measure_codec_costs(n=20, signing=True)) == set(costs)
+
+
+def test_feed_fields_are_the_fields_of_the_records_feed_gives():
+    codec = Codec(1, 1, LIMITS, Signing(bytes(range(32)), 3))
+    frames = [codec.encode(m) for m in sample_messages()]
+    unsigned = Codec(7, 1, LIMITS).encode(TimeSync(0, 5))  # rejected: signing is on
+    data = b"\x00junk" + b"".join(frames[:4]) + unsigned + b"\xfd\x01" + b"".join(frames[4:])
+    by_records = FrameParser(LIMITS, Signing(bytes(range(32)), 3))
+    by_fields = FrameParser(LIMITS, Signing(bytes(range(32)), 3))
+    records = [d for i in range(0, len(data), 37) for d in by_records.feed(data[i:i + 37])]
+    fields = [f for i in range(0, len(data), 37) for f in by_fields.feed_fields(data[i:i + 37])]
+    assert len(records) == len(frames)
+    assert fields == [tuple(getattr(d, f.name) for f in dataclasses.fields(Decoded)) for d in records]
+    assert all(d.signed and d.link_id == 3 for d in records)
+    assert by_fields.counters == by_records.counters
+    assert by_fields.counters.unsigned_rejected == 1
+
+
+def test_frame_wraps_a_payload_exactly_as_encode_does():
+    for message in sample_messages():
+        frame = Codec(4, 2, LIMITS).encode(message, target_system=9)
+        msgid = frame[7] | frame[8] << 8 | frame[9] << 16
+        payload = frame[10:10 + frame[1]]
+        source = frame[5]  # MocapPose frames come from the body's id
+        wrapped = Codec(4, 2, LIMITS).frame(msgid, bytes([mav.mavlink_map[msgid].crc_extra]), payload, source)
+        assert wrapped == frame, type(message).__name__

@@ -182,3 +182,19 @@ def test_parser_counters_and_undelivered_frames():
     assert snap.rx_lost == 0  # the PING in between was authentic, just not deliverable
     assert snap.unsupported_messages == 1 and snap.crc_failures == 1
     assert snap.rx_bytes == sum(map(len, frames)) + len(bad)
+
+
+def test_record_frame_is_record_received_from_the_header_fields():
+    frames = decoded_frames(300)  # the sequence wraps
+    order = frames[:5] + frames[7:9] + frames[6:7] + frames[9:200] + frames[150:151] + frames[210:]
+    by_record, by_fields = LinkStats(shared_clock=True), LinkStats(shared_clock=True)
+    verdicts = []
+    for n, d in enumerate(order):
+        received_s, sample_s = 1.0 + 0.01 * n, 0.995 + 0.01 * n
+        verdict = by_record.record_received(d, received_s, sample_s)
+        assert by_fields.record_frame(d.system_id, d.component_id, d.sequence, len(d.frame), received_s,
+                                      sample_s) == verdict
+        verdicts.append(verdict)
+    assert verdicts.count("late") == 1 and verdicts.count("duplicate") == 1
+    assert by_fields.snapshot() == by_record.snapshot()
+    assert by_fields.snapshot().rx_lost == 1 + 10  # frame 5, then 200..209
