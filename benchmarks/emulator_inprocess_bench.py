@@ -3,7 +3,8 @@
 Takes in: --seconds of simulated flight per run, --vehicles for the fleet run, --seed.
 Gives out (printed): real-time factor and microseconds per physics step for one vehicle and for a fleet,
 where a step's time goes (uplink, firmware, sensors + telemetry, physics; time.perf_counter accounting
-inside SimVehicle.step), and the ratio of the float RK4 step to a numpy-on-3-vectors RK4 baseline.
+inside SimVehicle.step), the ratio of the float RK4 step to a numpy-on-3-vectors RK4 baseline, and of
+an IMU sample drawn from blocks (simulator.sensors) to one Generator call per sample (baseline).
 
 Each vehicle hovers at 1 m on ThrustMoment setpoints from a tiny PD hover law (standing in for the ground
 station, 100 Hz, reading the truth); the PD law's own time is reported apart from the vehicle's.
@@ -19,10 +20,11 @@ import time
 
 import numpy as np
 
-from link.messages import ThrustMoment
+from link.messages import ImuSample, ThrustMoment
 from link.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.dynamics import QuadrotorDynamics
 from simulator.firmware import load_firmware_params
+from simulator.sensors import DRAW_BLOCK, ImuModel
 from simulator.vehicle_sim import SimVehicle
 
 PHYSICS_RATE_HZ = 1000.0
@@ -130,6 +132,34 @@ def float_rk4_step_us(repeats: int) -> float:
     return (time.perf_counter() - start) / repeats * 1e6
 
 
+def per_sample_imu_us(repeats: int) -> float:
+    """Baseline: the same IMU model (white noise + bias random walk) with one Generator call per sample."""
+    noise = load_vehicle("crazyflie").imu
+    rng = np.random.default_rng(0)
+    white = [noise.accel_noise_density * noise.rate_hz ** 0.5] * 3 + [noise.gyro_noise_density
+                                                                      * noise.rate_hz ** 0.5] * 3
+    walk = [noise.accel_bias_random_walk / noise.rate_hz ** 0.5] * 3 + [noise.gyro_bias_random_walk
+                                                                        / noise.rate_hz ** 0.5] * 3
+    bias = [0.0] * 6
+    f, w = (0.0, 0.0, GRAVITY_MPS2), (0.0, 0.0, 0.0)
+    start = time.perf_counter()
+    for k in range(repeats):
+        n = rng.standard_normal(12).tolist()
+        e = [bias[i] + white[i] * n[i] for i in range(6)]
+        ImuSample(k * 0.002, (f[0] + e[0], f[1] + e[1], f[2] + e[2]), (w[0] + e[3], w[1] + e[4], w[2] + e[5]))
+        bias = [bias[i] + walk[i] * n[6 + i] for i in range(6)]
+    return (time.perf_counter() - start) / repeats * 1e6
+
+
+def block_imu_us(repeats: int) -> float:
+    imu = ImuModel(load_vehicle("crazyflie").imu, np.random.default_rng(0))
+    f, w = (0.0, 0.0, GRAVITY_MPS2), (0.0, 0.0, 0.0)
+    start = time.perf_counter()
+    for k in range(repeats):
+        imu.sample(k * 0.002, f, w)
+    return (time.perf_counter() - start) / repeats * 1e6
+
+
 def report(title: str, r: dict, profiled: dict) -> None:
     print(f"{title}: {r['steps']} vehicle-steps, {r['outputs']} outputs, crashes {r['crashes']}, "
           f"max |z - 1 m| {r['height_error_m']:.4f} m")
@@ -158,6 +188,9 @@ def main() -> None:
     candidate = float_rk4_step_us(5000)
     print(f"RK4 step alone: numpy 3-vectors (baseline) {baseline:.1f} us, plain floats (candidate) "
           f"{candidate:.1f} us, speed-up {baseline / candidate:.1f}x")
+    baseline, candidate = per_sample_imu_us(20000), block_imu_us(20000)
+    print(f"IMU sample alone: a Generator call per sample (baseline) {baseline:.2f} us, blocks of "
+          f"{DRAW_BLOCK} (candidate) {candidate:.2f} us, speed-up {baseline / candidate:.1f}x")
     for count in (1, args.vehicles):
         seconds = args.seconds if count == 1 else max(args.seconds / count, 1.0)
         timed = fly(count, seconds, args.seed, profile=False)

@@ -1,8 +1,10 @@
 """The flight loop's clocks: realtime (monotonic wall clock) and lockstep (the emulator's sim clock).
 
 Takes in: the loop period; for lockstep, the clock transport and the vehicle link (to count frames).
-Gives out: `wait()` -> the time of the tick to compute (s); `done(next_wakeup_s)` when the tick's
-commands are sent; tick timing statistics (tick duration, lateness, deadline misses).
+Gives out: `wait()` -> the time of the tick to compute (s); `release(next_wakeup_s)` as soon as the
+tick's commands are sent (lockstep: the ack, so the emulator steps on while the tick's bookkeeping and
+log row are written); `done()` when the tick's work is finished; tick timing statistics (tick duration,
+lateness, deadline misses).
 """
 
 from __future__ import annotations
@@ -79,7 +81,10 @@ class RealtimeClock:
         self.timer.start()
         return t
 
-    def done(self, next_wakeup_s: float) -> None:  # noqa: ARG002 - the period decides
+    def release(self, next_wakeup_s: float) -> None:
+        """Nothing to tell anyone: the period decides the next tick."""
+
+    def done(self) -> None:
         self.timer.stop()
 
     def leave(self) -> None:
@@ -152,10 +157,13 @@ class LockstepClock:
             if waited % 5.0 < 0.5:
                 log.info("lockstep: waiting for the emulator's clock on %s", self.transport.rx)
 
-    def done(self, next_wakeup_s: float) -> None:
-        self.timer.stop()
+    def release(self, next_wakeup_s: float) -> None:
+        """Ack the tick: every uplink frame of it is sent. The emulator may step on from here."""
         wake_ns = max(round(next_wakeup_s * NS_PER_S), round(self.t_s * NS_PER_S) + 1)
         self.transport.send(ClockAck(self.tick, self.link.uplink_sent, wake_ns).pack())
+
+    def done(self) -> None:
+        self.timer.stop()
 
     def leave(self) -> None:
         self.transport.send(ClockAck(self.tick, self.link.uplink_sent, 0, leaving=True).pack())

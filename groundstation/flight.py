@@ -102,6 +102,7 @@ class FlightLoop:
         self.truth_history: deque[TruthState] = deque(maxlen=TRUTH_HISTORY)
         self.timesync = TimeSyncTracker(clock=clock.now, stats=link.radio.stats)
         self.interrupts = 0
+        self._uplink_latency_s: float | None = None
 
     # --- inputs ----------------------------------------------------------------------------------
     def absorb(self, now_s: float) -> None:
@@ -145,6 +146,8 @@ class FlightLoop:
         if sample is None:
             return
         self.health.rtt_s.append(sample.rtt_s)
+        recent = self.health.rtt_s[-COMPENSATION_RTT_SAMPLES:]
+        self._uplink_latency_s = float(np.median(recent)) / 2.0  # per reply (2 Hz), not per tick
         self.health.offset_s = -sample.offset_s  # the tracker gives local - remote; we keep vehicle - ours
         self.health.have_offset = True
 
@@ -183,9 +186,8 @@ class FlightLoop:
             self.next_timesync_s = now_s + period
 
     def uplink_latency_s(self) -> float | None:
-        """One-way uplink latency: half the median of the recent TIMESYNC round trips."""
-        recent = self.health.rtt_s[-COMPENSATION_RTT_SAMPLES:]
-        return None if not recent else float(np.median(recent)) / 2.0
+        """One-way uplink latency: half the median of the recent TIMESYNC round trips (None before any)."""
+        return self._uplink_latency_s
 
     def control(self, now_s: float, step) -> tuple:
         est = self.estimate
@@ -232,8 +234,9 @@ class FlightLoop:
         while True:
             now = self.clock.wait()
             self.absorb(now)
+            self.clock.release(now + self.period_s)
             self.write_row(now, done, None)
-            self.clock.done(now + self.period_s)
+            self.clock.done()
             if now >= give_up or (now >= observe_until and self._status_covers_all_sent()):
                 return
 
@@ -263,9 +266,12 @@ class FlightLoop:
             self.link.send(VehicleCommand(now, step.command))
         if step.reference is not None and view is not None and step.phase != Phase.DONE:
             out = self.control(now, step)
+        # Everything the vehicle needs from this tick is sent: release the lockstep before the
+        # bookkeeping, which changes nothing that is sent (the log is the same either way).
+        self.clock.release(now + self.period_s)
         self.write_row(now, step, out)
         self.check_health(now)
-        self.clock.done(now + self.period_s)
+        self.clock.done()
 
     def write_row(self, now: float, step, out) -> None:
         est = self.estimate
@@ -295,31 +301,36 @@ class FlightLoop:
                      None if est is None else est.healthy, stats.tx_frames,
                      stats.rx_frames, stats.sequences.lost, rtt, tick_ms,
                      None if est is None else est.time_s)
-        self.record.t.append(now)
-        self.record.phase.append(step.phase.value)
-        self.record.ref.append(None if step.reference is None else np.array(step.reference.position_m, float))
-        self.record.est.append(None if est is None else np.array(est.position_enu_m, float))
-        self.record.est_vel.append(None if est is None else np.array(est.velocity_enu_mps, float))
-        self.record.truth.append(None if truth is None else np.array(truth.position_enu_m, float))
-        self.record.truth_vel.append(None if truth is None else np.array(truth.velocity_enu_mps, float))
+        record = self.record  # tuples, stacked into arrays once at the end (session.grade)
+        record.t.append(now)
+        record.phase.append(step.phase.value)
+        record.ref.append(ref and ref[:3])
+        record.est.append(est_vals and est_vals[:3])
+        record.est_vel.append(est_vals and est_vals[3:6])
+        record.truth.append(truth_vals and truth_vals[:3])
+        record.truth_vel.append(truth_vals and truth_vals[3:6])
         at_est = None if est is None else self.truth_at(est.time_s)
-        self.record.truth_at_est.append(None if at_est is None else at_est[0])
-        self.record.truth_vel_at_est.append(None if at_est is None else at_est[1])
+        record.truth_at_est.append(None if at_est is None else at_est[0])
+        record.truth_vel_at_est.append(None if at_est is None else at_est[1])
 
     def truth_at(self, t_s: float):
-        """(position, velocity) of the truth at time t_s, interpolated; None outside the history."""
+        """(position, velocity) of the truth at time t_s, linearly interpolated, as tuples; None outside
+        the history. Searched from the newest sample: the estimate lags the newest truth by a few frames."""
         history = self.truth_history
         if not history or not history[0].time_s <= t_s <= history[-1].time_s:
             return None
-        newest_first = list(reversed(history))
-        for older, newer in zip(newest_first, newest_first[1:], strict=False):
-            if newer.time_s <= t_s <= older.time_s:
+        older = history[-1]  # "older" in time order is the later sample; walk back from the newest
+        for i in range(len(history) - 2, -1, -1):
+            newer = history[i]
+            if newer.time_s <= t_s:
                 span = older.time_s - newer.time_s
                 f = 0.0 if span <= 0 else (t_s - newer.time_s) / span
-                pos = np.add(newer.position_enu_m, f * np.subtract(older.position_enu_m, newer.position_enu_m))
-                vel = np.add(newer.velocity_enu_mps, f * np.subtract(older.velocity_enu_mps, newer.velocity_enu_mps))
-                return pos, vel
-        return None
+                return (_lerp(newer.position_enu_m, older.position_enu_m, f),
+                        _lerp(newer.velocity_enu_mps, older.velocity_enu_mps, f))
+            older = newer
+        only = history[0]  # a single sample, at exactly t_s
+        return _lerp(only.position_enu_m, only.position_enu_m, 0.0), _lerp(only.velocity_enu_mps,
+                                                                           only.velocity_enu_mps, 0.0)
 
     def check_health(self, now: float) -> None:
         """Warn once when mocap rate, latency or delivery leave sane bounds."""
@@ -344,3 +355,10 @@ class FlightLoop:
         if key not in self.health.warned:
             self.health.warned.add(key)
             log.warning("link health: %s", message)
+
+
+def _lerp(a, b, f: float) -> tuple[float, float, float]:
+    """a + f (b - a) for 3-vectors, as floats."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    return (float(a0 + f * (b0 - a0)), float(a1 + f * (b1 - a1)), float(a2 + f * (b2 - a2)))

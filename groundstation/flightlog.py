@@ -35,11 +35,14 @@ def default_log_dir(root: str | Path = "flights") -> Path:
 
 def _cells(values, count: int) -> list[str]:
     if values is None:
-        return [""] * count
-    out = [repr(float(v)) for v in values]
+        return _EMPTY[count]
+    out = list(map(repr, map(float, values)))  # float(): numpy scalars would repr as np.float64(...)
     if len(out) != count:
         raise ValueError(f"expected {count} values, got {len(out)}")
     return out
+
+
+_EMPTY = {count: [""] * count for count in _BLOCKS.values()}
 
 
 class FlightLog:

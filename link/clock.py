@@ -1,12 +1,12 @@
 """The lockstep simulation clock: a small protocol beside MAVLink, never subject to radio loss.
 
-Takes in: the emulator's tick (tick index, simulation time, how many frames it has published on each
-of a vehicle's keys so far) and a ground station's acknowledgement (tick index, how many uplink frames
-it has sent so far, when it next wants to be woken).
+Takes in: the emulator's tick (tick index, simulation time, how many samples it has published on each
+of a vehicle's keys so far; a sample holds one or more whole MAVLink frames) and a ground station's
+acknowledgement (tick index, how many uplink frames it has sent so far, when it next wants to be woken).
 Gives out: fixed-size little-endian records for the clock keys (link.keys), and their decoding.
 
 Why counts: zenoh keeps order per key, not across keys. A ground station that has seen tick k waits
-until it holds `downlink_published` downlink frames, so it never computes on a partial tick; the
+until it holds `downlink_published` downlink samples, so it never computes on a partial tick; the
 emulator likewise waits for `uplink_sent` uplink frames before stepping on. That makes lockstep runs
 byte-identical whatever the scheduling.
 """

@@ -13,8 +13,10 @@ Physics (Mellinger & Kumar 2011 notation; body z = thrust axis):
     I w' = M - w x I w,   [T, M]^T = A [w_1^2 .. w_4^2]^T  (A = Vehicle.allocation)
     motor lag (tau > 0):  w_i' = (w_cmd_i - w_i) / tau  (solved exactly over the step)
     rotor drag (c > 0):   f_drag_xy = -c (sum_i w_i / w_hover) v_body_xy   (N; c per rotor at hover)
-Integrated by classical RK4 at a fixed step. The state lives in plain Python floats: a numpy call on a
-3-vector costs ~1 us, which would blow the < 50 us per step budget of the emulator.
+Integrated by classical RK4 at a fixed step (tests check its fourth order against an independent
+solution). The state lives in plain Python floats and the RK4 stages are written out: a numpy call on a
+3-vector costs ~1 us, and a Python call per stage ~0.3 us, against a budget of a few us per step. The
+wrench terms (T/m, M/I, drag/m) are recomputed only when the rotor speeds change.
 
 Floor (z = world bounds zmin, or 0 without a world): a resting vehicle stays put, level, at rest, until
 its thrust exceeds its weight. Touching the floor no faster than landing_speed_max_mps is a landing
@@ -32,9 +34,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from link.messages import TruthState
 from link.vehicle import GRAVITY_MPS2, Vehicle
 from link.world import World
 from simulator.rotation import IDENTITY, Quat, Vec3, level_with_yaw, quat_normalize
+
+_NO_DV: Vec3 = (0.0, 0.0, 0.0)  # no contact impulse since the last IMU sample (compared by identity)
 
 
 @dataclass(frozen=True)
@@ -94,13 +99,21 @@ class QuadrotorDynamics:
         self._has_blocks = world is not None and len(world.blocks) > 0
         self._block_check_at: Vec3 | None = None
         self._block_clearance_m = 0.0
-        self._contact_dv_enu: Vec3 = (0.0, 0.0, 0.0)
+        self._contact_dv_enu: Vec3 = _NO_DV
+
+        h = self.dt_s
+        self._h = (h, 0.5 * h, 0.25 * h, h / 6.0, h / 12.0, h * h / 6.0)  # see _rk4
+        ixx, iyy, izz = self._ixx, self._iyy, self._izz
+        self._gyro = ((izz - iyy) / ixx, (ixx - izz) / iyy, (iyy - ixx) / izz)  # w x I w, per inertia
+        self._open_space = world is None  # nothing to meet but the floor
 
         self._n = 0
+        self.t_s = 0.0  # simulation time (s): steps taken times dt
         self._x = [float(v) for v in position_enu_m] + [0.0, 0.0, 0.0] + list(quat_normalize(attitude_wxyz)) \
             + [0.0, 0.0, 0.0]
-        self._w = [0.0, 0.0, 0.0, 0.0]  # rotor speeds, rad/s
         self._w_cmd = [0.0, 0.0, 0.0, 0.0]
+        self._cmd_given: tuple | None = None  # the last command, when given as a (immutable) tuple
+        self._set_rotor_speeds([0.0, 0.0, 0.0, 0.0])  # rotor speeds (rad/s) and what they give
         self.crash: Crash | None = None
         if self._x[2] < self.floor_z_m:
             raise ValueError(f"start height {self._x[2]} m is below the floor at {self.floor_z_m} m")
@@ -112,11 +125,6 @@ class QuadrotorDynamics:
         self._check_world(0.0)
 
     # --- state ------------------------------------------------------------------------------------
-    @property
-    def t_s(self) -> float:
-        """Simulation time (s): steps taken times dt."""
-        return self._n * self.dt_s
-
     @property
     def steps(self) -> int:
         return self._n
@@ -141,6 +149,12 @@ class QuadrotorDynamics:
         x = self._x
         return (x[10], x[11], x[12])
 
+    def truth(self) -> TruthState:
+        """The state now (time t_s) as the simulation-only TruthState message."""
+        x = self._x
+        return TruthState(self.t_s, (x[0], x[1], x[2]), (x[3], x[4], x[5]), (x[6], x[7], x[8], x[9]),
+                          (x[10], x[11], x[12]))
+
     @property
     def rotor_speeds_radps(self) -> tuple[float, float, float, float]:
         return tuple(self._w)
@@ -159,8 +173,10 @@ class QuadrotorDynamics:
         if rate_flu_radps is not None:
             x[10:13] = [float(v) for v in rate_flu_radps]
         if rotor_speeds_radps is not None:
-            self._w = [min(max(float(v), self._w_min), self._w_max) for v in rotor_speeds_radps]
-            self._w_cmd = list(self._w)
+            speeds = [min(max(float(v), self._w_min), self._w_max) for v in rotor_speeds_radps]
+            self._set_rotor_speeds(speeds)
+            self._w_cmd = list(speeds)
+            self._cmd_given = None
         self.on_ground = False
         self._block_check_at = None
 
@@ -169,17 +185,31 @@ class QuadrotorDynamics:
         """Rotor speeds (rad/s) to hold from now on, clamped to the vehicle's [min, max].
 
         Without motor lag they apply at once; with lag the rotors approach them with time constant tau.
-        Zeros mean motors off (even below a non-zero minimum speed).
+        Zeros mean motors off (even below a non-zero minimum speed). A tuple equal to the last one
+        given changes nothing and costs nothing (the firmware repeats its command between setpoints).
         """
+        if speeds_radps.__class__ is tuple and speeds_radps == self._cmd_given:
+            return
         lo, hi = self._w_min, self._w_max
-        cmd = [0.0 if s == 0.0 else (lo if s < lo else hi if s > hi else s) for s in speeds_radps]
+        s0, s1, s2, s3 = speeds_radps
+        if lo < s0 <= hi and lo < s1 <= hi and lo < s2 <= hi and lo < s3 <= hi:  # the usual case: in range
+            cmd = [float(s0), float(s1), float(s2), float(s3)]
+        else:
+            cmd = [0.0 if s == 0.0 else (lo if s < lo else hi if s > hi else float(s)) for s in speeds_radps]
         self._w_cmd = cmd
+        self._cmd_given = speeds_radps if speeds_radps.__class__ is tuple else None
         if not self._lag:
-            self._w = list(cmd)
+            self._set_rotor_speeds(cmd)
 
     def stop_motors(self) -> None:
         self._w_cmd = [0.0, 0.0, 0.0, 0.0]
-        self._w = [0.0, 0.0, 0.0, 0.0]
+        self._cmd_given = None
+        self._set_rotor_speeds([0.0, 0.0, 0.0, 0.0])
+
+    def _set_rotor_speeds(self, speeds: list[float]) -> None:
+        """Rotor speeds now, and the wrench terms the integrator takes from them (cached until they change)."""
+        self._w = speeds
+        self._thrust_n, self._u = self._inputs_for(speeds)
 
     # --- outputs ----------------------------------------------------------------------------------
     def wrench(self, speeds=None) -> tuple[float, float, float, float]:
@@ -199,113 +229,157 @@ class QuadrotorDynamics:
             g = GRAVITY_MPS2
             return (2.0 * (qx * qz - qw * qy) * g, 2.0 * (qy * qz + qw * qx) * g,
                     (1.0 - 2.0 * (qx * qx + qy * qy)) * g)
-        w = self._w
-        thrust = self._alloc[0][0] * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + w[3] * w[3])
-        if self._drag_per_radps == 0.0:
-            return (0.0, 0.0, thrust / self._mass)
-        drag = self._drag_per_radps * (w[0] + w[1] + w[2] + w[3]) / self._mass
+        thrust_m, _, _, _, drag_m = self._u
+        if drag_m == 0.0:
+            return (0.0, 0.0, thrust_m)
         vbx, vby, _ = _world_to_body(x[6], x[7], x[8], x[9], x[3], x[4], x[5])
-        return (-drag * vbx, -drag * vby, thrust / self._mass)
+        return (-drag_m * vbx, -drag_m * vby, thrust_m)
 
     # --- stepping ---------------------------------------------------------------------------------
     def step(self) -> Crash | None:
         """Advance one dt with the held rotor command; returns the Crash if this step ended the flight."""
-        self._n += 1
+        n = self._n + 1
+        self._n = n
+        self.t_s = n * self.dt_s
         if self.crash is not None:
             return None
-        w0 = self._w
+        u0 = um = u1 = self._u
         if self._lag:
-            cmd = self._w_cmd
+            w0, cmd = self._w, self._w_cmd
             dh, df = self._decay_half, self._decay_full
-            w_mid = [c + (w - c) * dh for w, c in zip(w0, cmd, strict=True)]
             w_end = [c + (w - c) * df for w, c in zip(w0, cmd, strict=True)]
-        else:
-            w_mid = w_end = w0
+            if w_end != w0:
+                um = self._inputs_for([c + (w - c) * dh for w, c in zip(w0, cmd, strict=True)])[1]
+                thrust_end, u1 = self._inputs_for(w_end)
         if self.on_ground:
-            if self._alloc[0][0] * (w0[0] ** 2 + w0[1] ** 2 + w0[2] ** 2 + w0[3] ** 2) <= self._weight:
-                self._w = w_end  # the floor holds it: no sinking, no sliding, stays level
+            if self._thrust_n <= self._weight:  # the floor holds it: no sinking, no sliding, stays level
+                if u1 is not u0:
+                    self._w, self._thrust_n, self._u = w_end, thrust_end, u1
                 return None
             self.on_ground = False
-        self._x = self._rk4(self._x, w0, w_mid, w_end)
-        self._w = w_end
+        x = self._x = self._rk4(self._x, u0, um, u1)
+        if u1 is not u0:
+            self._w, self._thrust_n, self._u = w_end, thrust_end, u1
+        if self._open_space and x[2] >= self.floor_z_m:
+            return None  # no world, above the floor: nothing to meet
         return self._check_world(self.t_s)
 
-    def _stage_inputs(self, w) -> tuple[float, float, float, float, float]:
-        """(T/m, Mx, My, Mz, drag/m) for rotor speeds w."""
+    def _inputs_for(self, w) -> tuple[float, tuple[float, float, float, float, float]]:
+        """T (N), and (T/m, Mx/Ixx, My/Iyy, Mz/Izz, drag/m) for rotor speeds w: what the integrator takes."""
         s0, s1, s2, s3 = w[0] * w[0], w[1] * w[1], w[2] * w[2], w[3] * w[3]
         a0, a1, a2, a3 = self._alloc
-        drag = self._drag_per_radps * (w[0] + w[1] + w[2] + w[3]) / self._mass
-        return ((a0[0] * s0 + a0[1] * s1 + a0[2] * s2 + a0[3] * s3) / self._mass,
-                a1[0] * s0 + a1[1] * s1 + a1[2] * s2 + a1[3] * s3,
-                a2[0] * s0 + a2[1] * s1 + a2[2] * s2 + a2[3] * s3,
-                a3[0] * s0 + a3[1] * s1 + a3[2] * s2 + a3[3] * s3,
-                drag)
+        thrust = a0[0] * s0 + a0[1] * s1 + a0[2] * s2 + a0[3] * s3
+        return thrust, (thrust / self._mass,
+                        (a1[0] * s0 + a1[1] * s1 + a1[2] * s2 + a1[3] * s3) / self._ixx,
+                        (a2[0] * s0 + a2[1] * s1 + a2[2] * s2 + a2[3] * s3) / self._iyy,
+                        (a3[0] * s0 + a3[1] * s1 + a3[2] * s2 + a3[3] * s3) / self._izz,
+                        self._drag_per_radps * (w[0] + w[1] + w[2] + w[3]) / self._mass)
 
-    def _rk4(self, x: list[float], w0, w_mid, w_end) -> list[float]:
-        """One classical RK4 step, unrolled on local floats (position's derivative is the stage velocity)."""
-        h = self.dt_s
-        h2 = 0.5 * h
-        u0 = self._stage_inputs(w0)
-        um = u0 if w_mid is w0 else self._stage_inputs(w_mid)
-        u1 = u0 if w_end is w0 else self._stage_inputs(w_end)
-        f = self._derivative
+    def _rk4(self, x: list[float], u0, um, u1) -> list[float]:
+        """One classical RK4 step of the module docstring's equations, written out on local floats.
+
+        Stage i evaluates the derivatives at its attitude q_i, rates w_i and velocity v_i, with the
+        inputs u = (T/m, M/I, drag/m) at the start (stage 1), middle (2, 3) or end (4) of the step:
+            a_i = T/m R(q_i) e3 - g e3 (+ drag)                        (v')
+            p_i = Omega(w_i) q_i = (0, w_i) (x) q_i... as q (x) (0, w_i), q' = p / 2
+            e_i = M/I - c * (w_y w_z, w_z w_x, w_x w_y),  c = ((Izz - Iyy)/Ixx, (Ixx - Izz)/Iyy, (Iyy - Ixx)/Izz)
+        then x_{n+1} = x_n + h/6 (k1 + 2 k2 + 2 k3 + k4). Position's stage derivatives are the stage
+        velocities v, v + h/2 a1, v + h/2 a2, v + h a3, so its update folds to h v + h^2/6 (a1 + a2 + a3).
+        The quaternion is renormalised after the step (RK4 keeps |q| = 1 only to O(h^5)).
+        The scalar part of p is carried negated (n = -p_w) to save a negation per stage.
+        """
+        h, h2, hq, h6, h12, hh6 = self._h
+        cx, cy, cz = self._gyro
         px, py, pz, vx, vy, vz, qw, qx, qy, qz, wx, wy, wz = x
-        a1x, a1y, a1z, d1w, d1x, d1y, d1z, e1x, e1y, e1z = f(qw, qx, qy, qz, wx, wy, wz, vx, vy, vz, *u0)
-        v2x, v2y, v2z = vx + h2 * a1x, vy + h2 * a1y, vz + h2 * a1z
-        a2x, a2y, a2z, d2w, d2x, d2y, d2z, e2x, e2y, e2z = f(
-            qw + h2 * d1w, qx + h2 * d1x, qy + h2 * d1y, qz + h2 * d1z,
-            wx + h2 * e1x, wy + h2 * e1y, wz + h2 * e1z, v2x, v2y, v2z, *um)
-        v3x, v3y, v3z = vx + h2 * a2x, vy + h2 * a2y, vz + h2 * a2z
-        a3x, a3y, a3z, d3w, d3x, d3y, d3z, e3x, e3y, e3z = f(
-            qw + h2 * d2w, qx + h2 * d2x, qy + h2 * d2y, qz + h2 * d2z,
-            wx + h2 * e2x, wy + h2 * e2y, wz + h2 * e2z, v3x, v3y, v3z, *um)
-        v4x, v4y, v4z = vx + h * a3x, vy + h * a3y, vz + h * a3z
-        a4x, a4y, a4z, d4w, d4x, d4y, d4z, e4x, e4y, e4z = f(
-            qw + h * d3w, qx + h * d3x, qy + h * d3y, qz + h * d3z,
-            wx + h * e3x, wy + h * e3y, wz + h * e3z, v4x, v4y, v4z, *u1)
-        h6 = h / 6.0
-        qw += h6 * (d1w + 2.0 * (d2w + d3w) + d4w)
-        qx += h6 * (d1x + 2.0 * (d2x + d3x) + d4x)
-        qy += h6 * (d1y + 2.0 * (d2y + d3y) + d4y)
-        qz += h6 * (d1z + 2.0 * (d2z + d3z) + d4z)
-        n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        # stage 1 at the start
+        tm, ex, ey, ez, dm = u0
+        t2, tg = 2.0 * tm, tm - GRAVITY_MPS2  # T/m R e3 - g e3 = (t2 (xz + wy), t2 (yz - wx), tg - t2 (x^2 + y^2))
+        a1x = t2 * (qx * qz + qw * qy)
+        a1y = t2 * (qy * qz - qw * qx)
+        a1z = tg - t2 * (qx * qx + qy * qy)
+        if dm != 0.0:
+            dx, dy, dz = _drag_world(qw, qx, qy, qz, vx, vy, vz, dm)
+            a1x, a1y, a1z = a1x + dx, a1y + dy, a1z + dz
+        n1 = qx * wx + qy * wy + qz * wz
+        p1x = qw * wx + qy * wz - qz * wy
+        p1y = qw * wy - qx * wz + qz * wx
+        p1z = qw * wz + qx * wy - qy * wx
+        e1x = ex - cx * wy * wz
+        e1y = ey - cy * wz * wx
+        e1z = ez - cz * wx * wy
+        # stage 2 at the middle, from stage 1's slopes
+        if um is not u0:
+            tm, ex, ey, ez, dm = um
+            t2, tg = 2.0 * tm, tm - GRAVITY_MPS2
+        sw, sx, sy, sz = qw - hq * n1, qx + hq * p1x, qy + hq * p1y, qz + hq * p1z
+        rx, ry, rz = wx + h2 * e1x, wy + h2 * e1y, wz + h2 * e1z
+        a2x = t2 * (sx * sz + sw * sy)
+        a2y = t2 * (sy * sz - sw * sx)
+        a2z = tg - t2 * (sx * sx + sy * sy)
+        if dm != 0.0:
+            dx, dy, dz = _drag_world(sw, sx, sy, sz, vx + h2 * a1x, vy + h2 * a1y, vz + h2 * a1z, dm)
+            a2x, a2y, a2z = a2x + dx, a2y + dy, a2z + dz
+        n2 = sx * rx + sy * ry + sz * rz
+        p2x = sw * rx + sy * rz - sz * ry
+        p2y = sw * ry - sx * rz + sz * rx
+        p2z = sw * rz + sx * ry - sy * rx
+        e2x = ex - cx * ry * rz
+        e2y = ey - cy * rz * rx
+        e2z = ez - cz * rx * ry
+        # stage 3 at the middle, from stage 2's slopes
+        sw, sx, sy, sz = qw - hq * n2, qx + hq * p2x, qy + hq * p2y, qz + hq * p2z
+        rx, ry, rz = wx + h2 * e2x, wy + h2 * e2y, wz + h2 * e2z
+        a3x = t2 * (sx * sz + sw * sy)
+        a3y = t2 * (sy * sz - sw * sx)
+        a3z = tg - t2 * (sx * sx + sy * sy)
+        if dm != 0.0:
+            dx, dy, dz = _drag_world(sw, sx, sy, sz, vx + h2 * a2x, vy + h2 * a2y, vz + h2 * a2z, dm)
+            a3x, a3y, a3z = a3x + dx, a3y + dy, a3z + dz
+        n3 = sx * rx + sy * ry + sz * rz
+        p3x = sw * rx + sy * rz - sz * ry
+        p3y = sw * ry - sx * rz + sz * rx
+        p3z = sw * rz + sx * ry - sy * rx
+        e3x = ex - cx * ry * rz
+        e3y = ey - cy * rz * rx
+        e3z = ez - cz * rx * ry
+        # stage 4 at the end, from stage 3's slopes (q + h q' = q + h/2 p)
+        if u1 is not um:
+            tm, ex, ey, ez, dm = u1
+            t2, tg = 2.0 * tm, tm - GRAVITY_MPS2
+        sw, sx, sy, sz = qw - h2 * n3, qx + h2 * p3x, qy + h2 * p3y, qz + h2 * p3z
+        rx, ry, rz = wx + h * e3x, wy + h * e3y, wz + h * e3z
+        a4x = t2 * (sx * sz + sw * sy)
+        a4y = t2 * (sy * sz - sw * sx)
+        a4z = tg - t2 * (sx * sx + sy * sy)
+        if dm != 0.0:
+            dx, dy, dz = _drag_world(sw, sx, sy, sz, vx + h * a3x, vy + h * a3y, vz + h * a3z, dm)
+            a4x, a4y, a4z = a4x + dx, a4y + dy, a4z + dz
+        n4 = sx * rx + sy * ry + sz * rz
+        p4x = sw * rx + sy * rz - sz * ry
+        p4y = sw * ry - sx * rz + sz * rx
+        p4z = sw * rz + sx * ry - sy * rx
+        e4x = ex - cx * ry * rz
+        e4y = ey - cy * rz * rx
+        e4z = ez - cz * rx * ry
+        # combine; q' = p / 2, so q takes h/12 of the p's
+        qw -= h12 * (n1 + 2.0 * (n2 + n3) + n4)
+        qx += h12 * (p1x + 2.0 * (p2x + p3x) + p4x)
+        qy += h12 * (p1y + 2.0 * (p2y + p3y) + p4y)
+        qz += h12 * (p1z + 2.0 * (p2z + p3z) + p4z)
+        k = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        sx, sy, sz = a1x + a2x + a3x, a1y + a2y + a3y, a1z + a2z + a3z  # a1 + 2 a2 + 2 a3 + a4 = s + a2 + a3 + a4
         return [
-            px + h6 * (vx + 2.0 * (v2x + v3x) + v4x),
-            py + h6 * (vy + 2.0 * (v2y + v3y) + v4y),
-            pz + h6 * (vz + 2.0 * (v2z + v3z) + v4z),
-            vx + h6 * (a1x + 2.0 * (a2x + a3x) + a4x),
-            vy + h6 * (a1y + 2.0 * (a2y + a3y) + a4y),
-            vz + h6 * (a1z + 2.0 * (a2z + a3z) + a4z),
-            qw / n, qx / n, qy / n, qz / n,
+            px + h * vx + hh6 * sx,
+            py + h * vy + hh6 * sy,
+            pz + h * vz + hh6 * sz,
+            vx + h6 * (sx + a2x + a3x + a4x),
+            vy + h6 * (sy + a2y + a3y + a4y),
+            vz + h6 * (sz + a2z + a3z + a4z),
+            qw * k, qx * k, qy * k, qz * k,
             wx + h6 * (e1x + 2.0 * (e2x + e3x) + e4x),
             wy + h6 * (e1y + 2.0 * (e2y + e3y) + e4y),
             wz + h6 * (e1z + 2.0 * (e2z + e3z) + e4z),
         ]
-
-    def _derivative(self, qw, qx, qy, qz, wx, wy, wz, vx, vy, vz, thrust_m, mx, my, mz, drag_m):
-        """(v', q', w') for the stage attitude, rates and velocity, mass-normalised thrust and drag, and
-        body moments; r' = v is taken by the caller."""
-        # thrust along body z, in world: T/m * R e3
-        ax = thrust_m * 2.0 * (qx * qz + qw * qy)
-        ay = thrust_m * 2.0 * (qy * qz - qw * qx)
-        az = thrust_m * (1.0 - 2.0 * (qx * qx + qy * qy)) - GRAVITY_MPS2
-        if drag_m != 0.0:
-            vbx, vby, _ = _world_to_body(qw, qx, qy, qz, vx, vy, vz)
-            fx, fy = -drag_m * vbx, -drag_m * vby  # body-frame drag acceleration, rotated to world
-            ax += (1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy
-            ay += 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy
-            az += 2.0 * (qx * qz - qw * qy) * fx + 2.0 * (qy * qz + qw * qx) * fy
-        ixx, iyy, izz = self._ixx, self._iyy, self._izz
-        return (
-            ax, ay, az,
-            0.5 * (-qx * wx - qy * wy - qz * wz),
-            0.5 * (qw * wx + qy * wz - qz * wy),
-            0.5 * (qw * wy - qx * wz + qz * wx),
-            0.5 * (qw * wz + qx * wy - qy * wx),
-            (mx - (izz - iyy) * wy * wz) / ixx,
-            (my - (ixx - izz) * wz * wx) / iyy,
-            (mz - (iyy - ixx) * wx * wy) / izz,
-        )
 
     # --- contact ----------------------------------------------------------------------------------
     def _rest_on_floor(self) -> None:
@@ -317,7 +391,10 @@ class QuadrotorDynamics:
         Contact stops the vehicle within one step; an accelerometer integrates that impulse, so the IMU
         adds this over its sample period (else an estimator would never see the vehicle stop).
         """
-        dv, self._contact_dv_enu = self._contact_dv_enu, (0.0, 0.0, 0.0)
+        dv = self._contact_dv_enu
+        if dv is _NO_DV:
+            return dv
+        self._contact_dv_enu = _NO_DV
         x = self._x
         return _world_to_body(x[6], x[7], x[8], x[9], *dv)
 
@@ -401,6 +478,16 @@ class QuadrotorDynamics:
         self._x[3:6] = [0.0, 0.0, 0.0]
         self._x[10:13] = [0.0, 0.0, 0.0]
         return self.crash
+
+
+def _drag_world(qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, vz: float,
+                drag_m: float) -> Vec3:
+    """Rotor drag acceleration in world ENU: R(q) (-d v_body_x, -d v_body_y, 0) for drag d = c sum(w) / m."""
+    vbx, vby, _ = _world_to_body(qw, qx, qy, qz, vx, vy, vz)
+    fx, fy = -drag_m * vbx, -drag_m * vby
+    return ((1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy,
+            2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy,
+            2.0 * (qx * qz - qw * qy) * fx + 2.0 * (qy * qz + qw * qx) * fy)
 
 
 def _world_to_body(qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, vz: float) -> Vec3:

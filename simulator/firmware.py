@@ -52,14 +52,13 @@ from simulator.mixer import Mixer
 from simulator.rotation import (
     Quat,
     Vec3,
-    quat_conjugate,
     quat_from_euler_zyx,
     quat_from_yaw,
-    quat_multiply,
     yaw_of,
 )
 
 MOTORS_OFF = (0.0, 0.0, 0.0, 0.0)
+_SETPOINTS_IGNORED_IN = (VehicleMode.LANDING, VehicleMode.CRASHED)  # armed modes that ignore setpoints
 
 
 @dataclass(frozen=True)
@@ -146,10 +145,26 @@ class BodyState(Protocol):
 
 
 def _finite(*values) -> bool:
+    """Every value a finite real number (False for NaN, inf and non-numbers)."""
+    isfinite = math.isfinite
     try:
-        return all(math.isfinite(float(v)) for v in values)
+        for v in values:
+            if not isfinite(v):
+                return False
+    except TypeError:
+        return False
+    return True
+
+
+def _within(values, limits) -> bool:
+    """|v| <= limit for each pair (False for NaN and non-numbers: a NaN comparison is False)."""
+    try:
+        for v, limit in zip(values, limits, strict=True):
+            if not abs(v) <= limit:
+                return False
     except (TypeError, ValueError):
         return False
+    return True
 
 
 class Firmware:
@@ -169,7 +184,14 @@ class Firmware:
         slack = 1.0 + params.limit_relative_tolerance
         self._max_thrust_n = vehicle.max_thrust_n * slack
         self._max_moment_nm = tuple(float(v) * slack for v in vehicle.max_moment_nm)
-        self._k_d = vehicle.k_drag_torque
+        # energy per tick (J): k_D sum(w^3) / efficiency + avionics, times the tick period
+        self._rotor_j_per_cube = vehicle.k_drag_torque / params.motor_efficiency * self.tick_period_s
+        self._avionics_j = params.avionics_power_w * self.tick_period_s
+        self._level_timeout_s = params.watchdog_level_timeout_s
+        self._shutdown_timeout_s = params.watchdog_shutdown_timeout_s
+        self._watchdog_from_s = min(self._level_timeout_s, self._shutdown_timeout_s)  # one test while fresh
+        self._moment_speeds: tuple[float, ...] | None = None  # the mix of the ThrustMoment setpoint, once made
+        self._level_attitude: Quat = (1.0, 0.0, 0.0, 0.0)
         self._energy_total_j = (vehicle.battery_capacity_mah * 3.6
                                 * 0.5 * (vehicle.battery_full_v + vehicle.battery_empty_v))
         self.energy_used_j = 0.0
@@ -192,11 +214,8 @@ class Firmware:
         return True
 
     def _valid_thrust_moment(self, sp: ThrustMoment) -> bool:
-        if not self._thrust_ok(sp.time_s, sp.thrust_n) or len(sp.moment_flu_nm) != 3:
-            return False
-        if not _finite(*sp.moment_flu_nm):
-            return False
-        return all(abs(m) <= limit for m, limit in zip(sp.moment_flu_nm, self._max_moment_nm, strict=True))
+        # |M| within the (finite) limits also rejects NaN and inf
+        return self._thrust_ok(sp.time_s, sp.thrust_n) and _within(sp.moment_flu_nm, self._max_moment_nm)
 
     def _valid_attitude_target(self, sp: AttitudeTarget) -> bool:
         if not self._thrust_ok(sp.time_s, sp.thrust_n):
@@ -205,31 +224,38 @@ class Firmware:
             return False
         if not _finite(*sp.attitude_wxyz, *sp.rates_flu_radps):
             return False
-        norm = math.sqrt(sum(float(v) ** 2 for v in sp.attitude_wxyz))
-        if abs(norm - 1.0) > self.params.quaternion_norm_tolerance:
+        w, x, y, z = sp.attitude_wxyz
+        if abs(math.sqrt(w * w + x * x + y * y + z * z) - 1.0) > self.params.quaternion_norm_tolerance:
             return False
-        return all(abs(r) <= self.params.max_rate_radps for r in sp.rates_flu_radps)
+        return _within(sp.rates_flu_radps, (self.params.max_rate_radps,) * 3)
 
     def _thrust_ok(self, time_s, thrust_n) -> bool:
-        return _finite(time_s, thrust_n) and 0.0 <= thrust_n <= self._max_thrust_n
+        try:  # a NaN or inf thrust fails the range test
+            return math.isfinite(time_s) and 0.0 <= thrust_n <= self._max_thrust_n
+        except TypeError:
+            return False
 
     def _take_setpoint(self, sp, arrival_s: float, valid: bool) -> bool:
         if not valid:
             self.rejected_commands += 1
             return False
-        if not self.armed or self.mode in (VehicleMode.LANDING, VehicleMode.CRASHED):
+        if not self.armed or self.mode in _SETPOINTS_IGNORED_IN:
             self.ignored_setpoints += 1
             return True
         self._sp_arrival_s = arrival_s
         self._sp_thrust_n = float(sp.thrust_n)
+        self._moment_speeds = None
         if isinstance(sp, ThrustMoment):
             self.mode = VehicleMode.MOMENTS
-            self._sp_moment = tuple(float(v) for v in sp.moment_flu_nm)
+            mx, my, mz = sp.moment_flu_nm
+            self._sp_moment = (float(mx), float(my), float(mz))
         else:
             self.mode = VehicleMode.ATTITUDE
-            n = math.sqrt(sum(float(v) ** 2 for v in sp.attitude_wxyz))
-            self._sp_attitude = tuple(float(v) / n for v in sp.attitude_wxyz)
-            self._sp_rates = tuple(float(v) for v in sp.rates_flu_radps)
+            w, x, y, z = sp.attitude_wxyz
+            n = math.sqrt(w * w + x * x + y * y + z * z)
+            self._sp_attitude = (float(w) / n, float(x) / n, float(y) / n, float(z) / n)
+            rx, ry, rz = sp.rates_flu_radps
+            self._sp_rates = (float(rx), float(ry), float(rz))
         return True
 
     def _take_command(self, cmd: VehicleCommand, arrival_s: float) -> bool:
@@ -262,6 +288,7 @@ class Firmware:
         self.arm(t_s)
         self.mode = VehicleMode.MOMENTS
         self._sp_thrust_n = self.vehicle.weight_n
+        self._moment_speeds = None
 
     def disarm(self, watchdog: bool = False) -> None:
         self.armed = False
@@ -276,12 +303,15 @@ class Firmware:
         self._sp_moment = (0.0, 0.0, 0.0)
         self._sp_attitude = (1.0, 0.0, 0.0, 0.0)
         self._sp_rates = (0.0, 0.0, 0.0)
+        self._moment_speeds = None
         self._yaw_pending = False
 
     # --- the 500 Hz loop --------------------------------------------------------------------------
     def tick(self, t_s: float, body: BodyState) -> tuple[float, ...]:
         """One commander + attitude loop pass at sim time t_s; rotor speeds (rad/s) to hold until the next."""
-        self._draw_battery(body.rotor_speeds_radps)
+        w0, w1, w2, w3 = body.rotor_speeds_radps
+        self.energy_used_j += self._rotor_j_per_cube * (w0 * w0 * w0 + w1 * w1 * w1 + w2 * w2 * w2
+                                                        + w3 * w3 * w3) + self._avionics_j
         if body.crash is not None:
             self.armed = False
             self.mode = VehicleMode.CRASHED
@@ -291,38 +321,47 @@ class Firmware:
         if self.mode == VehicleMode.LANDING:
             return self._land(t_s, body)
         age_s = t_s - self._sp_arrival_s
-        if age_s > self.params.watchdog_shutdown_timeout_s:
-            self.disarm(watchdog=True)
-            return MOTORS_OFF
-        if age_s > self.params.watchdog_level_timeout_s:
+        if age_s > self._watchdog_from_s:
+            if age_s > self._shutdown_timeout_s:
+                self.disarm(watchdog=True)
+                return MOTORS_OFF
             if self.mode != VehicleMode.LEVEL:
                 self.mode = VehicleMode.LEVEL
                 self._held_yaw_rad = yaw_of(body.attitude_wxyz)
-            level = quat_from_yaw(self._held_yaw_rad)
-            return self._follow_attitude(self._sp_thrust_n, level, (0.0, 0.0, 0.0), body)
+                self._level_attitude = quat_from_yaw(self._held_yaw_rad)
+            return self._follow_attitude(self._sp_thrust_n, self._level_attitude, (0.0, 0.0, 0.0), body)
         if self.mode == VehicleMode.ATTITUDE:
             return self._follow_attitude(self._sp_thrust_n, self._sp_attitude, self._sp_rates, body)
-        return self.mixer.mix(self._sp_thrust_n, self._sp_moment)  # MOMENTS, or IDLE-armed at zero
+        # MOMENTS, or IDLE-armed at zero: the same rotor speeds until the setpoint changes
+        speeds = self._moment_speeds
+        if speeds is None:
+            speeds = self._moment_speeds = self.mixer.mix(self._sp_thrust_n, self._sp_moment)
+        return speeds
 
     def attitude_moments(self, attitude_des: Quat, rates_des: Vec3, body: BodyState) -> Vec3:
         """M = I (-K_R e_R - K_w (w - w_des)) + w x I w (N m, body FLU)."""
-        qe = quat_multiply(quat_conjugate(attitude_des), body.attitude_wxyz)
-        s = 2.0 * qe[0]
+        # q_e = q_des^* (x) q, written out; e_R = 2 q_e,w q_e,xyz
+        a0, a1, a2, a3 = attitude_des
+        q0, q1, q2, q3 = body.attitude_wxyz
+        s = 2.0 * (a0 * q0 + a1 * q1 + a2 * q2 + a3 * q3)
+        ex = s * (a0 * q1 - a1 * q0 - a2 * q3 + a3 * q2)
+        ey = s * (a0 * q2 + a1 * q3 - a2 * q0 - a3 * q1)
+        ez = s * (a0 * q3 - a1 * q2 + a2 * q1 - a3 * q0)
         wx, wy, wz = body.rate_flu_radps
         krx, kry, krz = self.params.k_r_per_s2
         kwx, kwy, kwz = self.params.k_w_per_s
         ixx, iyy, izz = self._inertia
         return (
-            ixx * (-krx * s * qe[1] - kwx * (wx - rates_des[0])) + (izz - iyy) * wy * wz,
-            iyy * (-kry * s * qe[2] - kwy * (wy - rates_des[1])) + (ixx - izz) * wz * wx,
-            izz * (-krz * s * qe[3] - kwz * (wz - rates_des[2])) + (iyy - ixx) * wx * wy,
+            ixx * (-krx * ex - kwx * (wx - rates_des[0])) + (izz - iyy) * wy * wz,
+            iyy * (-kry * ey - kwy * (wy - rates_des[1])) + (ixx - izz) * wz * wx,
+            izz * (-krz * ez - kwz * (wz - rates_des[2])) + (iyy - ixx) * wx * wy,
         )
 
     def _follow_attitude(self, thrust_n: float, attitude_des: Quat, rates_des: Vec3,
-                         body: BodyState) -> list[float]:
+                         body: BodyState) -> tuple[float, ...]:
         return self.mixer.mix(thrust_n, self.attitude_moments(attitude_des, rates_des, body))
 
-    def _land(self, t_s: float, body: BodyState) -> tuple[float, ...] | list[float]:
+    def _land(self, t_s: float, body: BodyState) -> tuple[float, ...]:
         if body.on_ground or t_s - self._landing_since_s > self.params.landing_timeout_s:
             self.disarm()
             return MOTORS_OFF
@@ -369,7 +408,3 @@ class Firmware:
                              remaining_pct=int(round(100.0 * soc)), rejected_commands=self.rejected_commands,
                              uplink_received=self.uplink_received)
 
-    def _draw_battery(self, rotor_speeds) -> None:
-        rotor_power_w = self._k_d * sum(w * w * w for w in rotor_speeds)
-        power_w = rotor_power_w / self.params.motor_efficiency + self.params.avionics_power_w
-        self.energy_used_j += power_w * self.tick_period_s

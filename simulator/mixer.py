@@ -37,14 +37,19 @@ class Mixer:
         self.w2_min = vehicle.rotor_speed_min_radps ** 2
         self.w2_max = vehicle.rotor_speed_max_radps ** 2
 
-    def mix(self, thrust_n: float, moment_flu_nm) -> list[float]:
+    def mix(self, thrust_n: float, moment_flu_nm) -> tuple[float, float, float, float]:
         """Rotor speeds (rad/s) giving thrust_n and moment_flu_nm, saturated attitude first."""
         mx, my, mz = moment_flu_nm
         lo, hi = self.w2_min, self.w2_max
-        w2 = [r[0] * thrust_n + r[1] * mx + r[2] * my + r[3] * mz for r in self._inv_rows]
-        if min(w2) >= lo and max(w2) <= hi:
-            return [math.sqrt(v) for v in w2]
-        return [math.sqrt(v) for v in self.saturated_w2(thrust_n, mx, my, mz).tolist()]
+        r0, r1, r2, r3 = self._inv_rows
+        w0 = r0[0] * thrust_n + r0[1] * mx + r0[2] * my + r0[3] * mz
+        w1 = r1[0] * thrust_n + r1[1] * mx + r1[2] * my + r1[3] * mz
+        w2 = r2[0] * thrust_n + r2[1] * mx + r2[2] * my + r2[3] * mz
+        w3 = r3[0] * thrust_n + r3[1] * mx + r3[2] * my + r3[3] * mz
+        if lo <= w0 <= hi and lo <= w1 <= hi and lo <= w2 <= hi and lo <= w3 <= hi:
+            sqrt = math.sqrt
+            return (sqrt(w0), sqrt(w1), sqrt(w2), sqrt(w3))
+        return tuple(math.sqrt(v) for v in self.saturated_w2(thrust_n, mx, my, mz).tolist())
 
     def saturated_w2(self, thrust_n: float, mx: float, my: float, mz: float) -> np.ndarray:
         """Squared rotor speeds by the attitude-first rule of the module docstring."""

@@ -39,11 +39,14 @@ What happens to frame i offered at t_i (s), in this order:
  4. Duplication: with `duplication.probability` a second copy is delivered right after the first.
  5. Corruption, per delivered copy: with `corruption.frame_probability` exactly `bits_per_frame`
     distinct bits flip, plus Binomial(8 L, `bit_error_rate`) more; the receiver's CRC must reject it.
+Uniform draws come from the generator in blocks (one numpy call per 4096); without keep_ledger no
+per-frame record (FrameFate) is built, and the draws and deliveries are the same either way.
 """
 
 from __future__ import annotations
 
 import heapq
+import itertools
 import math
 from array import array
 from collections import Counter, deque
@@ -362,21 +365,11 @@ class RadioStats:
         return float(np.mean(self.latency_s)) if self.latency_s else math.nan
 
 
-class _Uniforms:
-    """U(0,1) draws from the generator, fetched in blocks (one numpy call per block, not per draw)."""
-
-    def __init__(self, rng: np.random.Generator):
-        self.rng = rng
-        self.block: list[float] = []
-        self.index = 0
-
-    def next(self) -> float:
-        if self.index == len(self.block):
-            self.block = self.rng.random(_UNIFORM_BLOCK).tolist()
-            self.index = 0
-        value = self.block[self.index]
-        self.index += 1
-        return value
+def _uniform_stream(rng: np.random.Generator):
+    """U(0,1) draws from the generator, fetched _UNIFORM_BLOCK at a time (one numpy call per block, not
+    per draw): an iterator whose next() is a C call. Blocks are drawn lazily, so the stream, and where it
+    interleaves with the generator's other calls, is a pure function of the seed and the pushes."""
+    return itertools.chain.from_iterable(iter(lambda: rng.random(_UNIFORM_BLOCK).tolist(), None))
 
 
 class RadioChannel:
@@ -390,30 +383,48 @@ class RadioChannel:
         self.stats = RadioStats()
         self.ledger: list[FrameFate] = []
         self.keep_ledger = keep_ledger
-        self._u = _Uniforms(rng)
+        self._uniform = _uniform_stream(rng).__next__
         # (delivery s, copy seq, offer index, bytes, corrupted, offered s, repaired); seq is unique,
         # so tuples never compare beyond it.
         self._heap: list[tuple[float, int, int, bytes, bool, float, bool]] = []
         self._copy_seq = 0  # tie-breaker: copies scheduled earlier leave first
         self._last_push_s = -math.inf
         self._channel_free_s = -math.inf
-        self._waiting_starts: deque[float] = deque()  # start times of admitted frames not yet on air
+        self._waiting_starts: deque[float] = deque()  # start times of admitted frames (some may have started)
         self._last_delivery_s = -math.inf
         self._latest_index_delivered = -1
         self._air_outcomes: deque[bool] = deque(maxlen=profile.status_window_frames)
+        self._read_profile(profile)
+        burst = profile.burst
+        self._burst_bad = burst.enabled and self._uniform() < burst.stationary_bad
+
+    def _read_profile(self, profile: RadioProfile) -> None:
+        """The profile's numbers as attributes, read once (push reads them for every frame)."""
         self._lo_jitter, self._hi_jitter = profile.jitter_bounds_s
-        self._min_latency_s = profile.min_latency_s  # cached: read once per frame
-        if profile.jitter == "normal" and profile.jitter_s > 0.0:
+        self._min_latency_s = profile.min_latency_s
+        self._base_s = profile.base_latency_s
+        self._jitter_law = profile.jitter if profile.jitter_s > 0.0 else None
+        if self._jitter_law == "normal":
             self._cdf_lo = float(ndtr(self._lo_jitter / profile.jitter_s))
             self._cdf_hi = float(ndtr(self._hi_jitter / profile.jitter_s))
-        burst = profile.burst
-        self._burst_bad = burst.enabled and self._u.next() < burst.stationary_bad
+        self._s_per_byte = 8.0 / profile.bandwidth_bps if profile.bandwidth_bps > 0.0 else 0.0
+        self._capacity = profile.queue_capacity_frames
+        self._burst = profile.burst if profile.burst.enabled else None
+        self._iid_p = profile.loss_probability
+        self._reorder_p, self._reorder_s = profile.reorder_probability, profile.reorder_delay_s
+        self._preserve_order = profile.preserve_order
+        self._duplicate_p = profile.duplicate_probability
+        self._corrupts = profile.corrupt_frame_probability > 0.0 or profile.bit_error_rate > 0.0
         cr = profile.crazyradio
+        self._packet_bytes: int | None = None  # data bytes per Crazyradio packet; None: model "simple"
         if cr is not None:
             sizes = range(cr.data_bytes_per_packet + 1)
             self._ok_s = [cr.attempt_ok_s(d) for d in sizes]
             self._failed_s = [cr.attempt_failed_s(d) for d in sizes]
+            self._packet_bytes = cr.data_bytes_per_packet
+            self._attempts = cr.auto_retransmit_count + 1
             p = cr.packet_loss_probability
+            self._packet_loss_p = p
             self._log_p = math.log(p) if 0.0 < p < 1.0 else None
 
     # --- public API ------------------------------------------------------------------------------
@@ -435,10 +446,12 @@ class RadioChannel:
             raise ValueError(f"radio {self.name!r}: frame pushed at t={t_s} s, before the previous "
                              f"push at t={self._last_push_s} s (pushes must not go back in time)")
         self._last_push_s = t_s
-        frame = bytes(frame)
-        index = self.stats.offered
-        self.stats.offered += 1
-        self.stats.bytes_offered += len(frame)
+        if frame.__class__ is not bytes:
+            frame = bytes(frame)
+        stats = self.stats
+        index = stats.offered
+        stats.offered = index + 1
+        stats.bytes_offered += len(frame)
         fate = self._decide(frame, index, t_s)
         if self.keep_ledger:
             self.ledger.append(fate)
@@ -448,16 +461,22 @@ class RadioChannel:
 
         Times within TIME_EPS_S count as equal: offer time + latency carries float rounding (0.1 + 0.02 >
         0.12), and a frame due exactly at a step must not slip to the next one."""
-        out = []
-        heap, stats = self._heap, self.stats
+        heap = self._heap
         due = t_s + TIME_EPS_S
+        if not heap or heap[0][0] > due:
+            return []
+        out = []
+        stats = self.stats
+        latencies = stats.latency_s
         while heap and heap[0][0] <= due:
             delivery_s, _, index, data, corrupted, offered_s, repaired = heapq.heappop(heap)
             stats.delivered += 1
             stats.bytes_delivered += len(data)
-            stats.latency_s.append(delivery_s - offered_s)
-            stats.corrupted += corrupted
-            stats.repaired += repaired
+            latencies.append(delivery_s - offered_s)
+            if corrupted:
+                stats.corrupted += 1
+            if repaired:
+                stats.repaired += 1
             if index < self._latest_index_delivered:
                 stats.reordered += 1
             else:
@@ -493,116 +512,132 @@ class RadioChannel:
         }
 
     # --- the model -------------------------------------------------------------------------------
-    def _decide(self, frame: bytes, index: int, t_s: float) -> FrameFate:
+    def _decide(self, frame: bytes, index: int, t_s: float) -> FrameFate | None:
+        """Draw the frame's fate (steps 1-5 of the module docstring) and schedule its copies; the
+        FrameFate only when the ledger is kept."""
         size = len(frame)
-        start_s = max(t_s, self._channel_free_s)
-        if not self._admit(t_s, start_s):
+        free_s = self._channel_free_s
+        start_s = t_s if t_s >= free_s else free_s
+        if start_s > t_s and not self._admit(t_s, start_s):
             self.stats.dropped[DropCause.QUEUE] += 1
-            return FrameFate(t_s, size, DropCause.QUEUE)
-        service_s, retransmissions, radio_lost = self._service(size)
-        self._channel_free_s = start_s + service_s
-        end_s = self._channel_free_s
-        cause = self._air_loss(radio_lost)
+            return FrameFate(t_s, size, DropCause.QUEUE) if self.keep_ledger else None
+        if self._packet_bytes is None:
+            air_s, retransmissions, cause = 0.0, 0, None
+        else:
+            air_s, retransmissions, cause = self._crazyradio_air(size)
+        end_s = self._channel_free_s = start_s + size * self._s_per_byte + air_s
+        uniform = self._uniform
+        burst = self._burst
+        if burst is not None:  # the chain steps for every frame on the air, whatever else happens
+            bad = self._burst_bad
+            if uniform() < (burst.loss_bad if bad else burst.loss_good) and cause is None:
+                cause = DropCause.BURST
+            if uniform() < (burst.p_bad_to_good if bad else burst.p_good_to_bad):
+                self._burst_bad = not bad
+        p = self._iid_p
+        if p > 0.0 and uniform() < p and cause is None:
+            cause = DropCause.IID
         self._air_outcomes.append(cause is None)
         if cause is not None:
             self.stats.dropped[cause] += 1
-            return FrameFate(t_s, size, cause, retransmissions=retransmissions)
+            return FrameFate(t_s, size, cause, retransmissions=retransmissions) if self.keep_ledger else None
         delivery_s = self._delivery_time(t_s, end_s)
         copies = 1
-        if self.profile.duplicate_probability > 0.0 and self._u.next() < self.profile.duplicate_probability:
+        if self._duplicate_p > 0.0 and uniform() < self._duplicate_p:
             copies = 2
             self.stats.duplicated += 1
+        repaired = retransmissions > 0
+        if copies == 1 and not self._corrupts and not self.keep_ledger:  # the common case, short
+            seq = self._copy_seq
+            self._copy_seq = seq + 1
+            heapq.heappush(self._heap, (delivery_s, seq, index, frame, False, t_s, repaired))
+            return None
         flips = []
         for _ in range(copies):
-            data, flipped = self._corrupt(frame)
+            data, flipped = self._corrupt(frame) if self._corrupts else (frame, 0)
             flips.append(flipped)
-            self._schedule(delivery_s, index, data, flipped > 0, t_s, retransmissions > 0)
+            seq = self._copy_seq
+            self._copy_seq = seq + 1
+            heapq.heappush(self._heap, (delivery_s, seq, index, data, flipped > 0, t_s, repaired))
+        if not self.keep_ledger:
+            return None
         return FrameFate(t_s, size, None, (delivery_s,) * copies, tuple(flips), retransmissions)
 
     def _admit(self, t_s: float, start_s: float) -> bool:
-        """FIFO with `capacity_frames` places for frames waiting for the channel."""
+        """FIFO with `capacity_frames` places for frames waiting for the channel (start_s > t_s: this
+        frame would wait). Starts at or before t_s are frames already on the air: no longer waiting."""
         waiting = self._waiting_starts
         while waiting and waiting[0] <= t_s:
             waiting.popleft()
-        if start_s <= t_s:
-            return True
-        if len(waiting) >= self.profile.queue_capacity_frames:
+        if len(waiting) >= self._capacity:
             return False
         waiting.append(start_s)
         return True
 
-    def _service(self, size: int) -> tuple[float, int, bool]:
-        """(channel time s, retransmissions, lost by exhausted retries) of one frame."""
-        service_s = 8.0 * size / self.profile.bandwidth_bps if self.profile.bandwidth_bps > 0.0 else 0.0
-        if self.profile.crazyradio is None:
-            return service_s, 0, False
-        air_s, retransmissions, lost = self._crazyradio_air(size)
-        return service_s + air_s, retransmissions, lost
-
-    def _crazyradio_air(self, size: int) -> tuple[float, int, bool]:
-        """Send the frame's packets one after the other; failed attempts per packet are geometric,
-        P(K >= k) = p^k, drawn by inversion K = floor(ln U / ln p)."""
-        cr = self.profile.crazyradio
-        p = cr.packet_loss_probability
-        arc = cr.auto_retransmit_count
+    def _crazyradio_air(self, size: int) -> tuple[float, int, DropCause | None]:
+        """(air time s, retransmissions, RETRIES if lost) of the frame's packets sent one after the
+        other: full packets of d data bytes, then the rest (one packet at least). Failed attempts per
+        packet are geometric, P(K >= k) = p^k, drawn by inversion K = floor(ln(1 - U) / ln p); K = 0
+        exactly when U < 1 - p, which needs no logarithm."""
+        d = self._packet_bytes
+        full, last = divmod(size, d)
+        if last == 0 and full > 0:
+            full, last = full - 1, d
+        ok_s = self._ok_s
+        p = self._packet_loss_p
+        if p == 0.0:
+            return full * ok_s[d] + ok_s[last], 0, None
+        attempts = self._attempts
+        if p == 1.0:  # every attempt of the first packet fails
+            return attempts * self._failed_s[d if full else last], attempts - 1, DropCause.RETRIES
+        keep = 1.0 - p
+        uniform = self._uniform
         air_s, retransmissions = 0.0, 0
-        for data in cr.packet_data_sizes(size):
-            if p == 0.0:
-                failures = 0
-            elif self._log_p is None:  # p == 1: every attempt fails
-                failures = arc + 1
-            else:
-                failures = int(math.log(1.0 - self._u.next()) / self._log_p)
-            if failures > arc:
-                return air_s + (arc + 1) * self._failed_s[data], retransmissions + arc, True
-            air_s += failures * self._failed_s[data] + self._ok_s[data]
+        data = d
+        for k in range(full + 1):
+            if k == full:
+                data = last
+            u = uniform()
+            if u < keep:
+                air_s += ok_s[data]
+                continue
+            failures = int(math.log(1.0 - u) / self._log_p)
+            if failures >= attempts:
+                return air_s + attempts * self._failed_s[data], retransmissions + attempts - 1, DropCause.RETRIES
+            air_s += failures * self._failed_s[data] + ok_s[data]
             retransmissions += failures
-        return air_s, retransmissions, False
-
-    def _air_loss(self, radio_lost: bool) -> DropCause | None:
-        """Step the Gilbert-Elliott chain and draw i.i.d. loss for every frame on the air, so each
-        impairment keeps its own statistics whatever the others do."""
-        cause = DropCause.RETRIES if radio_lost else None
-        burst = self.profile.burst
-        if burst.enabled:
-            loss = burst.loss_bad if self._burst_bad else burst.loss_good
-            if self._u.next() < loss and cause is None:
-                cause = DropCause.BURST
-            move = burst.p_bad_to_good if self._burst_bad else burst.p_good_to_bad
-            if self._u.next() < move:
-                self._burst_bad = not self._burst_bad
-        p = self.profile.loss_probability
-        if p > 0.0 and self._u.next() < p and cause is None:
-            cause = DropCause.IID
-        return cause
+        return air_s, retransmissions, None
 
     def _delivery_time(self, t_s: float, end_s: float) -> float:
-        profile = self.profile
-        delay = profile.base_latency_s + self._jitter()
-        if profile.reorder_probability > 0.0 and self._u.next() < profile.reorder_probability:
-            delay += profile.reorder_delay_s
+        delay = self._base_s
+        law = self._jitter_law
+        if law is not None:
+            u = self._uniform()
+            if law == "uniform":
+                delay += self._lo_jitter + u * (self._hi_jitter - self._lo_jitter)
+            else:  # truncated normal by inversion: exact, one draw, no rejection loop
+                q = self._cdf_lo + u * (self._cdf_hi - self._cdf_lo)
+                jitter_s = self.profile.jitter_s
+                delay += min(max(float(ndtri(q)) * jitter_s, self._lo_jitter), self._hi_jitter)
+        if self._reorder_p > 0.0 and self._uniform() < self._reorder_p:
+            delay += self._reorder_s
         # max(): floating-point rounding must never beat the advertised lower bound.
-        delivery_s = max(end_s + delay, t_s + self._min_latency_s)
-        if profile.preserve_order:
-            delivery_s = max(delivery_s, self._last_delivery_s)
-        self._last_delivery_s = max(self._last_delivery_s, delivery_s)
+        delivery_s = end_s + delay
+        floor_s = t_s + self._min_latency_s
+        if delivery_s < floor_s:
+            delivery_s = floor_s
+        last_s = self._last_delivery_s
+        if delivery_s > last_s:
+            self._last_delivery_s = delivery_s
+        elif self._preserve_order:
+            delivery_s = last_s
         return delivery_s
-
-    def _jitter(self) -> float:
-        if self.profile.jitter_s == 0.0:
-            return 0.0
-        u = self._u.next()
-        if self.profile.jitter == "uniform":
-            return self._lo_jitter + u * (self._hi_jitter - self._lo_jitter)
-        # Truncated normal by inversion: exact, one draw, no rejection loop.
-        q = self._cdf_lo + u * (self._cdf_hi - self._cdf_lo)
-        return min(max(float(ndtri(q)) * self.profile.jitter_s, self._lo_jitter), self._hi_jitter)
 
     def _corrupt(self, frame: bytes) -> tuple[bytes, int]:
         """(copy, number of distinct bits flipped)."""
         profile = self.profile
         flips = 0
-        if profile.corrupt_frame_probability > 0.0 and self._u.next() < profile.corrupt_frame_probability:
+        if profile.corrupt_frame_probability > 0.0 and self._uniform() < profile.corrupt_frame_probability:
             flips = profile.corrupt_bits_per_frame
         if profile.bit_error_rate > 0.0:
             flips += int(self.rng.binomial(8 * len(frame), profile.bit_error_rate))
@@ -613,12 +648,6 @@ class RadioChannel:
         for bit in self.rng.choice(8 * len(frame), size=flips, replace=False).tolist():
             data[bit >> 3] ^= 1 << (bit & 7)
         return bytes(data), flips
-
-    def _schedule(self, delivery_s: float, index: int, data: bytes, corrupted: bool, offered_s: float,
-                  repaired: bool) -> None:
-        seq = self._copy_seq
-        self._copy_seq += 1
-        heapq.heappush(self._heap, (delivery_s, seq, index, data, corrupted, offered_s, repaired))
 
     def _rssi(self) -> int:
         outcomes = self._air_outcomes

@@ -14,9 +14,12 @@ axis and attitude (x) exp(N(0, sigma_a^2) per axis, body frame); with probabilit
 outlier (a marker swap or ghost): its position jumps by outlier_magnitude_m in a uniformly random
 direction. Latency: a frame carries its sample time and is released latency_s after it (the caller
 schedules the release; see MocapModel.latency_s). Each frame draws the same count of random numbers
-whatever happens to it, so one fault does not reshuffle the noise of every later frame. Normal draws
-are taken from the Generator in blocks of DRAW_BLOCK samples (one numpy call per block instead of per
-sample: ~1 us saved per sample), still a pure function of the seed.
+whatever happens to it, so one fault does not reshuffle the noise of every later frame.
+
+Speed: the random parts are computed DRAW_BLOCK samples at a time with numpy (one Generator call per
+block; the IMU's b_k + n_k as a cumulative sum, mocap's error quaternions by a vectorised exp map), so a
+sample costs a few float additions. Blocks are drawn when needed, in sample order: the outputs are still
+a pure function of the seed and the samples asked for.
 """
 
 from __future__ import annotations
@@ -27,28 +30,9 @@ import numpy as np
 
 from link.messages import ImuSample, MocapPose
 from link.vehicle import ImuNoise, MocapRoom
-from simulator.rotation import Quat, Vec3, quat_from_rotvec, quat_multiply, quat_normalize
+from simulator.rotation import Quat, Vec3
 
 DRAW_BLOCK = 256  # samples of random numbers drawn per Generator call
-
-
-class _Draws:
-    """Rows of `uniforms` U(0, 1) numbers then `width` standard normals, drawn DRAW_BLOCK rows at a time."""
-
-    def __init__(self, rng: np.random.Generator, width: int, uniforms: int = 0):
-        self.rng, self.width, self.uniforms = rng, width, uniforms
-        self.rows: list[list[float]] = []
-        self.next = 0
-
-    def row(self) -> list[float]:
-        if self.next == len(self.rows):
-            normals = self.rng.standard_normal((DRAW_BLOCK, self.width))
-            if self.uniforms:
-                normals = np.hstack([self.rng.random((DRAW_BLOCK, self.uniforms)), normals])
-            self.rows = normals.tolist()
-            self.next = 0
-        self.next += 1
-        return self.rows[self.next - 1]
 
 
 class ImuModel:
@@ -62,26 +46,55 @@ class ImuModel:
         self.gyro_white_sigma = noise.gyro_noise_density * root_rate  # rad/s per sample
         self.accel_walk_sigma = noise.accel_bias_random_walk * root_dt  # m/s^2 per sample step
         self.gyro_walk_sigma = noise.gyro_bias_random_walk * root_dt  # rad/s per sample step
-        self.accel_bias = (rng.standard_normal(3) * noise.accel_bias_initial_sigma).tolist()
-        self.gyro_bias = (rng.standard_normal(3) * noise.gyro_bias_initial_sigma).tolist()
-        self._draws = _Draws(rng, 12)
+        self._white = np.array([self.accel_white_sigma] * 3 + [self.gyro_white_sigma] * 3)
+        self._walk = np.array([self.accel_walk_sigma] * 3 + [self.gyro_walk_sigma] * 3)
+        # b_0: accel then gyro; later, the bias of the first sample after the drawn rows
+        self._bias_next = np.concatenate([rng.standard_normal(3) * noise.accel_bias_initial_sigma,
+                                          rng.standard_normal(3) * noise.gyro_bias_initial_sigma])
+        self._rows: list[list[float]] = []  # per sample: b_k + n_k (accel, gyro)
+        self._biases = np.empty((0, 6))  # per sample: b_k (accel, gyro)
+        self._next = 0
+
+    @property
+    def accel_bias(self) -> list[float]:
+        """The accelerometer bias b_k (m/s^2, FLU) of the next sample."""
+        return self._peek()[0:3]
+
+    @property
+    def gyro_bias(self) -> list[float]:
+        """The gyro bias b_k (rad/s, FLU) of the next sample."""
+        return self._peek()[3:6]
 
     def sample(self, t_s: float, specific_force_flu_mps2: Vec3, rate_flu_radps: Vec3) -> ImuSample:
         """One reading at sample time t_s; then the biases take one random-walk step."""
-        n = self._draws.row()
-        sa, sg = self.accel_white_sigma, self.gyro_white_sigma
-        ba, bg = self.accel_bias, self.gyro_bias
+        i = self._next
+        if i == len(self._rows):
+            self._draw_block()
+            i = 0
+        self._next = i + 1
+        e = self._rows[i]
         f, w = specific_force_flu_mps2, rate_flu_radps
-        out = ImuSample(
-            time_s=t_s,
-            specific_force_flu_mps2=(f[0] + ba[0] + sa * n[0], f[1] + ba[1] + sa * n[1],
-                                     f[2] + ba[2] + sa * n[2]),
-            rate_flu_radps=(w[0] + bg[0] + sg * n[3], w[1] + bg[1] + sg * n[4], w[2] + bg[2] + sg * n[5]),
-        )
-        wa, wg = self.accel_walk_sigma, self.gyro_walk_sigma
-        self.accel_bias = [ba[0] + wa * n[6], ba[1] + wa * n[7], ba[2] + wa * n[8]]
-        self.gyro_bias = [bg[0] + wg * n[9], bg[1] + wg * n[10], bg[2] + wg * n[11]]
-        return out
+        # positional: a keyword call costs a third more (time_s, specific_force_flu_mps2, rate_flu_radps)
+        return ImuSample(t_s, (f[0] + e[0], f[1] + e[1], f[2] + e[2]), (w[0] + e[3], w[1] + e[4], w[2] + e[5]))
+
+    def _peek(self) -> list[float]:
+        """b_k (accel, gyro) of the next sample (the first of the next block once this one is used up)."""
+        if self._next == len(self._rows):
+            return self._bias_next.tolist()
+        return self._biases[self._next].tolist()
+
+    def _draw_block(self) -> None:
+        """DRAW_BLOCK samples' errors: per sample 6 white draws, then 6 walk draws (its bias step)."""
+        normals = self.rng.standard_normal((DRAW_BLOCK, 12))
+        walked = np.cumsum(normals[:, 6:] * self._walk, axis=0)  # b_{k+1} - b_start
+        start = self._bias_next
+        biases = np.empty_like(walked)  # b_k
+        biases[0] = start
+        biases[1:] = start + walked[:-1]
+        self._bias_next = start + walked[-1]
+        self._biases = biases
+        self._rows = (biases + normals[:, :6] * self._white).tolist()
+        self._next = 0
 
 
 class MocapModel:
@@ -95,24 +108,54 @@ class MocapModel:
         self.frames = 0
         self.dropouts = 0
         self.outliers = 0
-        self._draws = _Draws(rng, 9, uniforms=2)
+        self._rows: list[list[float]] = []
+        self._next = 0
 
     def sample(self, t_s: float, position_enu_m: Vec3, attitude_wxyz: Quat) -> MocapPose | None:
         """The pose seen at sample time t_s, or None when the frame is lost."""
-        room = self.room
-        u_drop, u_out, *n = self._draws.row()
+        i = self._next
+        if i == len(self._rows):
+            self._draw_block()
+            i = 0
+        self._next = i + 1
+        u_drop, u_out, nx, ny, nz, ew, ex, ey, ez, jx, jy, jz = self._rows[i]
         self.frames += 1
+        room = self.room
         if u_drop < room.dropout_probability:
             self.dropouts += 1
             return None
-        sp, sa = room.position_noise_m, room.attitude_noise_rad
         p = position_enu_m
-        x, y, z = p[0] + sp * n[0], p[1] + sp * n[1], p[2] + sp * n[2]
+        x, y, z = p[0] + nx, p[1] + ny, p[2] + nz
         if u_out < room.outlier_probability:
             self.outliers += 1
-            norm = math.sqrt(n[6] * n[6] + n[7] * n[7] + n[8] * n[8]) or 1.0
-            jump = room.outlier_magnitude_m / norm
-            x, y, z = x + jump * n[6], y + jump * n[7], z + jump * n[8]
-        error = quat_from_rotvec(sa * n[3], sa * n[4], sa * n[5])  # body-frame perturbation
-        attitude = quat_normalize(quat_multiply(attitude_wxyz, error))
-        return MocapPose(time_s=t_s, body_id=self.body_id, position_enu_m=(x, y, z), attitude_wxyz=attitude)
+            x, y, z = x + jx, y + jy, z + jz
+        # q (x) e: the error is a body-frame perturbation; renormalised against rounding
+        qw, qx, qy, qz = attitude_wxyz
+        aw = qw * ew - qx * ex - qy * ey - qz * ez
+        ax = qw * ex + qx * ew + qy * ez - qz * ey
+        ay = qw * ey - qx * ez + qy * ew + qz * ex
+        az = qw * ez + qx * ey - qy * ex + qz * ew
+        k = 1.0 / math.sqrt(aw * aw + ax * ax + ay * ay + az * az)
+        return MocapPose(t_s, self.body_id, (x, y, z), (aw * k, ax * k, ay * k, az * k))
+
+    def _draw_block(self) -> None:
+        """DRAW_BLOCK frames: per frame U(0,1) for dropout and outlier, then 9 normals - position noise,
+        attitude rotation vector, outlier direction - turned into the errors sample() adds."""
+        room = self.room
+        u = self.rng.random((DRAW_BLOCK, 2))
+        n = self.rng.standard_normal((DRAW_BLOCK, 9))
+        position = n[:, 0:3] * room.position_noise_m
+        error = _quat_exp(n[:, 3:6] * room.attitude_noise_rad)
+        norm = np.linalg.norm(n[:, 6:9], axis=1, keepdims=True)
+        jump = n[:, 6:9] * (room.outlier_magnitude_m / np.where(norm > 0.0, norm, 1.0))
+        self._rows = np.hstack([u, position, error, jump]).tolist()
+        self._next = 0
+
+
+def _quat_exp(rotvec: np.ndarray) -> np.ndarray:
+    """Rows (w, x, y, z) = exp of rotation vectors (rad), as simulator.rotation.quat_from_rotvec."""
+    angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
+    small = angle < 1e-12
+    safe = np.where(small, 1.0, angle)
+    scale = np.where(small, 0.5, np.sin(0.5 * safe) / safe)  # first order below 1e-12 rad
+    return np.hstack([np.where(small, 1.0, np.cos(0.5 * safe)), rotvec * scale])

@@ -14,7 +14,8 @@ plus `crash` (None or a dynamics.Crash) and `truth` (the current TruthState). No
 Within a step at time t, in order: uplinks due by t are applied, the firmware ticks if due (500 Hz)
 and sets the rotor command, sensors and telemetry due by t sample the state at t (stamped t), then the
 physics integrates to t + dt. Periodic tasks run on an integer schedule k / rate (no drift), sampled at
-the first physics step at or after each due time. Everything random comes from the Generator passed in
+the first physics step at or after each due time; a step with nothing due (half of them at 1 kHz physics
+and 500 Hz tasks) runs the physics alone. Everything random comes from the Generator passed in
 (split into independent IMU and mocap streams), so the same seed gives identical outputs.
 
 airborne=True starts in flight: armed, rotors at hover speed, as if a hover ThrustMoment arrived at
@@ -61,8 +62,13 @@ class _Schedule:
         self.next_s = 0.0
 
     def advance(self, t_s: float) -> None:
-        self.k = max(self.k + 1, math.floor((t_s + _EPS_S) / self.period_s) + 1)
-        self.next_s = self.k * self.period_s
+        """The next due time after t_s: k + 1, or later if the caller skipped whole periods."""
+        k = self.k + 1
+        next_s = k * self.period_s
+        if next_s <= t_s + _EPS_S:
+            k = max(k, math.floor((t_s + _EPS_S) / self.period_s) + 1)
+            next_s = k * self.period_s
+        self.k, self.next_s = k, next_s
 
 
 class SimVehicle:
@@ -95,8 +101,10 @@ class SimVehicle:
         self._battery = _Schedule(params.battery_rate_hz)
         self._uplinks: list[tuple[float, int, Message]] = []
         self._uplink_seq = 0
-        self._out: list[Output] = []
+        self._out: list[Output] = []  # in release order unless _out_unsorted
+        self._out_unsorted = False
         self._mocap_pending: deque[Output] = deque()
+        self._due_s = 0.0  # the earliest of the schedules' due times and the next queued uplink
         self.profile = profile
         self.timing_s = {"uplink": 0.0, "firmware": 0.0, "sensors": 0.0, "physics": 0.0}
         if airborne:
@@ -117,37 +125,34 @@ class SimVehicle:
 
     @property
     def truth(self) -> TruthState:
-        d = self.dynamics
-        return TruthState(time_s=d.t_s, position_enu_m=d.position_enu_m, velocity_enu_mps=d.velocity_enu_mps,
-                          attitude_wxyz=d.attitude_wxyz, rate_flu_radps=d.rate_flu_radps)
+        return self.dynamics.truth()
 
     def handle_uplink(self, message: Message, t_s: float) -> None:
         """A message the radio delivers at sim time t_s (applied now, or when the clock reaches t_s)."""
         if not math.isfinite(t_s):
             raise ValueError(f"uplink delivery time must be finite, got {t_s!r}")
-        if t_s <= self.t_s + _EPS_S:
+        if t_s <= self.dynamics.t_s + _EPS_S:
             self._deliver(message, t_s)
         else:
             heapq.heappush(self._uplinks, (t_s, self._uplink_seq, message))
             self._uplink_seq += 1
+            if t_s < self._due_s:
+                self._due_s = t_s
 
     def step(self) -> None:
         """One physics step (see the module docstring for what happens inside)."""
         if self.profile:
             self._step_profiled()
             return
-        t = self.dynamics.t_s
-        if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
-            self._deliver_due(t)
-        if t + _EPS_S >= self._fw.next_s:
-            self._tick_firmware(t)
-        if t + _EPS_S >= self._imu.next_s:
-            self._sample_imu(t)
-        if self._mocap is not None and t + _EPS_S >= self._mocap.next_s:
-            self._sample_mocap(t)
-        if t + _EPS_S >= self._truth.next_s:
-            self._emit_truth(t)
-        self.dynamics.step()
+        d = self.dynamics
+        t = d.t_s
+        if t + _EPS_S >= self._due_s:  # most steps at 1 kHz have nothing due but the physics
+            if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
+                self._deliver_due(t)
+            if t + _EPS_S >= self._fw.next_s:
+                self._tick_firmware(t)
+            self._sample_due(t)
+        d.step()
 
     def run(self, duration_s: float) -> None:
         """Step until the clock has advanced by duration_s (rounded to whole steps)."""
@@ -157,16 +162,38 @@ class SimVehicle:
     def pop_outputs(self) -> list[Output]:
         """Every output released by now (t_s), oldest release first; later ones stay queued."""
         out = self._out
-        self._out = []
         pending = self._mocap_pending
-        now = self.t_s + _EPS_S
-        while pending and pending[0].release_time_s <= now:
-            out.append(pending.popleft())
-        if len(out) > 1:
-            out.sort(key=_release_time)
+        now = self.dynamics.t_s + _EPS_S
+        mocap_due = pending and pending[0].release_time_s <= now
+        if not out and not mocap_due:
+            return []  # most steps
+        self._out = []
+        unsorted = self._out_unsorted
+        self._out_unsorted = False
+        if mocap_due:
+            unsorted = unsorted or bool(out)  # frames sampled earlier, released among newer outputs
+            while pending and pending[0].release_time_s <= now:
+                out.append(pending.popleft())
+        if unsorted:
+            out.sort(key=_release_time)  # stable: equal times keep their order
         return out
 
     # --- step parts -------------------------------------------------------------------------------
+    def _sample_due(self, t: float) -> None:
+        """The sensors and telemetry due by t (IMU, mocap, truth), then the next time anything is due."""
+        te = t + _EPS_S
+        due = self._uplinks[0][0] if self._uplinks else math.inf
+        if te >= self._imu.next_s:
+            self._sample_imu(t)
+        mocap = self._mocap
+        if mocap is not None:
+            if te >= mocap.next_s:
+                self._sample_mocap(t)
+            due = min(due, mocap.next_s)
+        if te >= self._truth.next_s:
+            self._emit_truth(t)
+        self._due_s = min(due, self._fw.next_s, self._imu.next_s, self._truth.next_s)
+
     def _deliver_due(self, t: float) -> None:
         queue = self._uplinks
         while queue and queue[0][0] <= t + _EPS_S:
@@ -180,6 +207,7 @@ class SimVehicle:
                 clock_ns = max(1, round(arrival_s * NS_PER_S))
                 reply = TimeSync(remote_ns=clock_ns, origin_ns=message.origin_ns)
                 self._out.append(Output(arrival_s, "downlink", reply))
+                self._out_unsorted = True  # arrival_s may precede outputs already queued
             return
         self.firmware.receive(message, arrival_s)
 
@@ -199,8 +227,8 @@ class SimVehicle:
         f = d.specific_force_flu()
         dv = d.take_contact_dv_flu()
         if dv != (0.0, 0.0, 0.0):  # a touchdown since the last sample: its impulse over the sample period
-            period = 1.0 / self.vehicle.imu.rate_hz
-            f = (f[0] + dv[0] / period, f[1] + dv[1] / period, f[2] + dv[2] / period)
+            rate = self.imu.rate_hz
+            f = (f[0] + dv[0] * rate, f[1] + dv[1] * rate, f[2] + dv[2] * rate)
         self._out.append(Output(t, "downlink", self.imu.sample(t, f, d.rate_flu_radps)))
 
     def _sample_mocap(self, t: float) -> None:
@@ -212,27 +240,23 @@ class SimVehicle:
 
     def _emit_truth(self, t: float) -> None:
         self._truth.advance(t)
-        self._out.append(Output(t, "truth", self.truth))
+        self._out.append(Output(t, "truth", self.dynamics.truth()))
 
     def _step_profiled(self) -> None:
         """step() with time.perf_counter accounting per part (for benchmarks; a few us slower)."""
         clock = time.perf_counter
         timing = self.timing_s
         t = self.dynamics.t_s
-        t0 = clock()
-        if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
-            self._deliver_due(t)
-        t1 = clock()
-        if t + _EPS_S >= self._fw.next_s:
-            self._tick_firmware(t)
-        t2 = clock()
-        if t + _EPS_S >= self._imu.next_s:
-            self._sample_imu(t)
-        if self._mocap is not None and t + _EPS_S >= self._mocap.next_s:
-            self._sample_mocap(t)
-        if t + _EPS_S >= self._truth.next_s:
-            self._emit_truth(t)
-        t3 = clock()
+        t0 = t1 = t2 = t3 = clock()
+        if t + _EPS_S >= self._due_s:
+            if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
+                self._deliver_due(t)
+            t1 = clock()
+            if t + _EPS_S >= self._fw.next_s:
+                self._tick_firmware(t)
+            t2 = clock()
+            self._sample_due(t)
+            t3 = clock()
         self.dynamics.step()
         t4 = clock()
         timing["uplink"] += t1 - t0

@@ -124,7 +124,7 @@ class Responder:
         self.stats = LinkStats(shared_clock=True)  # loss from sequence numbers, at the receiver
         self.stats.attach_parser(self.parser)
         self.ground_parser = FrameParser(self.codec)
-        self.raw_downlink: list[bytes] = []
+        self.raw_downlink: list[bytes] = []  # every frame that decoded, as bytes (a sample may hold several)
         self.downlink: list[tuple[float, object]] = []  # (tick time, message)
         self.mocap: list[tuple[float, MocapPose]] = []
         self.truth: list[tuple[float, TruthState]] = []
@@ -188,8 +188,8 @@ class Responder:
 
     def _decode(self, channel: int, frame: bytes) -> None:
         if channel == 0:
-            self.raw_downlink.append(frame)
             for decoded in self.parser.feed(frame, True):
+                self.raw_downlink.append(decoded.frame)
                 self.stats.record_received(decoded, self.t_s)
                 self.downlink.append((self.t_s, decoded.message))
             return

@@ -431,6 +431,26 @@ def test_same_seed_same_ledger_different_seed_different(name):
         assert first[0] != other[0]
 
 
+@pytest.mark.parametrize("name", PROFILES)
+def test_keeping_no_ledger_changes_nothing_the_far_end_sees(name):
+    def far_end(keep_ledger):
+        channel = RadioChannel(load_radio_profile(name), np.random.default_rng(9), keep_ledger=keep_ledger)
+        rng = np.random.default_rng(10)
+        seen = []
+        for i in range(3_000):
+            t = i * 0.001
+            channel.push(rng.bytes(int(rng.integers(12, 281))), t)
+            seen += [(t, f) for f in channel.pop_due(t)]
+        seen += [(math.inf, f) for f in channel.pop_due(math.inf)]
+        s = channel.stats
+        return seen, (s.delivered, s.dropped, s.duplicated, s.corrupted, s.reordered, s.repaired,
+                      list(s.latency_s)), channel.radio_status(), len(channel.ledger)
+
+    kept, dropped = far_end(True), far_end(False)
+    assert kept[:3] == dropped[:3]
+    assert (kept[3], dropped[3]) == (3_000, 0)
+
+
 def test_ledger_matches_what_the_far_end_saw_frame_for_frame():
     profile = dataclasses.replace(load_radio_profile("harsh"), corrupt_frame_probability=0.0)
     channel = RadioChannel(profile, np.random.default_rng(12))

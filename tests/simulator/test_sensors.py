@@ -8,11 +8,12 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from link.messages import ImuSample, MocapPose
 from link.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.rotation import quat_from_euler_zyx, rotation_angle_between
-from simulator.sensors import ImuModel, MocapModel
+from simulator.sensors import DRAW_BLOCK, ImuModel, MocapModel, _quat_exp
 from simulator.vehicle_sim import SimVehicle
 
 CF = load_vehicle("crazyflie")
@@ -48,6 +49,19 @@ def test_imu_bias_random_walk_increments_have_density_times_root_dt():
                                                                 * math.sqrt(dt)] * 3, rel=0.03)
 
 
+def test_imu_bias_walk_carries_on_across_draw_blocks():
+    # the biases are drawn DRAW_BLOCK samples at a time: no block may restart or jump the walk
+    walk_only = dataclasses.replace(CF.imu, accel_noise_density=0.0, gyro_noise_density=0.0)
+    accel, gyro = _imu_readings(walk_only, 5 * DRAW_BLOCK + 7)
+    root_dt = math.sqrt(1.0 / walk_only.rate_hz)
+    # 6.5 sigma: P(any of ~3800 Gaussian steps beyond it) < 1e-6
+    assert np.abs(np.diff(accel, axis=0)).max() < 6.5 * walk_only.accel_bias_random_walk * root_dt
+    assert np.abs(np.diff(gyro, axis=0)).max() < 6.5 * walk_only.gyro_bias_random_walk * root_dt
+    imu = ImuModel(walk_only, np.random.default_rng(0))
+    first = imu.accel_bias
+    assert imu.sample(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)).specific_force_flu_mps2 == pytest.approx(first)
+
+
 def test_imu_turn_on_bias_spread():
     biases = np.array([ImuModel(CF.imu, np.random.default_rng(seed)).accel_bias for seed in range(3000)])
     assert biases.std(axis=0) == pytest.approx([CF.imu.accel_bias_initial_sigma] * 3, rel=0.08)
@@ -67,6 +81,14 @@ def test_imu_reads_plus_g_on_body_z_at_rest_and_zero_in_free_fall():
     assert resting.mean(axis=0) == pytest.approx([0.0, 0.0, GRAVITY_MPS2], abs=0.1)
     assert falling.mean(axis=0) == pytest.approx([0.0, 0.0, 0.0], abs=0.1)
     assert len(resting) == pytest.approx(2.0 * CF.imu.rate_hz, abs=1)
+
+
+def test_mocap_attitude_errors_are_the_exponential_map_of_their_rotation_vectors():
+    rotvecs = np.random.default_rng(6).normal(0.0, 0.3, (200, 3))
+    rotvecs[0] = 0.0
+    got = _quat_exp(rotvecs)
+    expected = Rotation.from_rotvec(rotvecs).as_quat(scalar_first=True)
+    assert np.allclose(got * np.sign(got[:, :1]), expected * np.sign(expected[:, :1]), atol=1e-12)
 
 
 def test_mocap_noise_matches_the_room():
