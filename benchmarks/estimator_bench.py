@@ -1,27 +1,42 @@
-"""Speed of the estimator: microseconds per add_imu and per add_mocap, candidate against a naive baseline.
+"""Speed of the estimator per call: add_imu, add_mocap and estimate(), baseline against candidate, one run.
 
-Takes in: nothing (a seeded synthetic 1 m/s circle from tests/estimator/synthetic.py, crazyflie + vicon).
-Gives out: a table on stdout. Budget (issue "The ground station"): <= 60 us per IMU propagation and
-<= 150 us per mocap update including the rollback, on average.
+Takes in: nothing (seeded synthetic 1 m/s circles from tests/estimator/synthetic.py, crazyflie + vicon).
+Gives out: a table on stdout: median over interleaved repeats of the mean thread CPU microseconds per add_imu,
+per add_mocap, per estimate() and per flight-loop tick, for the baseline and the candidate, their ratio,
+and how far the two filters' final estimates differ (in units of the candidate's own sigma).
 
-Baseline ("naive"), same run, same data: the textbook way - F and Q by the exact Van Loan
-discretisation with scipy.linalg.expm every IMU interval, and every mocap frame replays the whole
-buffer (full recompute) instead of only the samples after the frame.
+Baseline: estimator/eskf.py as of commit BASELINE_COMMIT (before the per-sample speed work), read with
+`git show` and loaded as the module `eskf_baseline`; candidate: the working tree's estimator.eskf. Both
+get the same messages in the same order, fed as the ground station's lockstep loop does:
+  moments  - 2 ms ticks: the tick's messages, then one estimate() (one IMU sample per tick);
+  attitude - 10 ms ticks: the tick's messages (5 IMU samples, 1 mocap frame), then one estimate().
+Link cases: frames in order (Vicon 5 ms: each lands 2-3 IMU samples after its sample time, a short
+rollback), late and reordered (20 ms + 15 ms jitter: long rollbacks), and from the future (the IMU
+downlink 23 ms behind: frames wait, and are fused inside add_imu).
+Per-call figures move between columns when work moves (the candidate's covariance is propagated when
+something asks for it: estimate() or a mocap frame), so the per-tick column (add_imu + add_mocap +
+estimate) is the one to compare. est.build: estimate() once more after re-sending the tick's last IMU
+sample (a duplicate: ignored, but new input for the cache), i.e. the cost of building an Estimate alone.
+Budget (issue "The ground station"): <= 60 us per IMU propagation, <= 150 us per mocap update.
 
-Run: python benchmarks/estimator_bench.py [--seconds 10] [--naive-seconds 1.5]
+Run: python benchmarks/estimator_bench.py [--seconds 6] [--repeats 5] [--baseline-commit HASH]
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
+import statistics
+import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "estimator"))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "estimator"))
 
 from synthetic import Flight, LinkFaults, simulate  # noqa: E402
 
@@ -29,94 +44,129 @@ from estimator.eskf import ErrorStateKF  # noqa: E402
 from link.messages import ImuSample  # noqa: E402
 from link.vehicle import load_mocap_room, load_vehicle  # noqa: E402
 
-
-class NaiveErrorStateKF(ErrorStateKF):
-    """Same filter, textbook costs: expm discretisation and full-buffer replay on every frame."""
-
-    def _transition(self, r, f, w, dt):
-        rot = np.array(r).reshape(3, 3)
-        a = np.zeros((15, 15))
-        a[0:3, 3:6] = np.eye(3)
-        a[3:6, 6:9] = -rot @ _skew(f)
-        a[3:6, 9:12] = -rot
-        a[6:9, 6:9] = -_skew(w)
-        a[6:9, 12:15] = -np.eye(3)
-        qc = np.diag([0.0] * 3 + [self._accel_psd] * 3 + [self._gyro_psd] * 3
-                     + [self._accel_bias_psd] * 3 + [self._gyro_bias_psd] * 3)
-        m = np.zeros((30, 30))
-        m[:15, :15] = -a * dt
-        m[:15, 15:] = qc * dt
-        m[15:, 15:] = a.T * dt
-        e = scipy.linalg.expm(m)
-        f_d = e[15:, 15:].T
-        return f_d, f_d @ e[:15, 15:]
-
-    _in_mocap = False
-
-    def add_mocap(self, pose):
-        self._in_mocap = True
-        try:
-            return super().add_mocap(pose)
-        finally:
-            self._in_mocap = False
-
-    def _replay_from(self, i):
-        self._reuse_transitions = False
-        for j in range(1 if self._in_mocap else i, len(self._nodes)):
-            self._process(j)
+BASELINE_COMMIT = "cab9f57c13bfa3d422a11a3579d289f2ea03d9ed"
+CASES = (
+    ("in order (5 ms)", LinkFaults()),
+    ("late (20 ms + 15 ms jitter)", LinkFaults(mocap_latency_s=0.020, mocap_jitter_s=0.015)),
+    ("future (IMU 23 ms behind)", LinkFaults(imu_latency_s=0.023)),
+)
+IMU_SAMPLES_PER_TICK = {"moments": 1, "attitude": 5}
+WARMUP_S = 1.0  # not timed: the filter's start and first buffer fill
+CALLS = ("add_imu", "add_mocap", "estimate")
+BUILD = "est.build"  # estimate() right after a repeated (ignored) IMU sample: building the Estimate only
+COLUMNS = (*CALLS, "tick", BUILD)
 
 
-def _skew(v) -> np.ndarray:
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+def load_baseline(commit: str) -> type | None:
+    """ErrorStateKF of estimator/eskf.py at `commit`, or None (with the reason printed) without git."""
+    try:
+        source = subprocess.run(["git", "show", f"{commit}:estimator/eskf.py"], cwd=ROOT, check=True,
+                                capture_output=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError) as err:
+        print(f"baseline {commit[:9]} not readable with git ({err}): candidate only")
+        return None
+    module = types.ModuleType("eskf_baseline")
+    module.__file__ = f"<git {commit[:9]}:estimator/eskf.py>"
+    sys.modules[module.__name__] = module  # dataclasses look their module up
+    exec(compile(source, module.__file__, "exec"), module.__dict__)
+    return module.ErrorStateKF
 
 
-def time_filter(kf: ErrorStateKF, events: list, warmup_events: int) -> tuple[float, float, int, int]:
-    """Mean microseconds per add_imu and per add_mocap (after warm-up), and how many of each."""
-    t_imu = t_mocap = 0.0
-    n_imu = n_mocap = 0
-    clock = time.perf_counter
-    for k, (_, msg) in enumerate(events):
+def clock_overhead_ns() -> float:
+    """What two back-to-back readings of the thread CPU clock cost (subtracted from every call)."""
+    clock = time.thread_time_ns
+    samples = []
+    for _ in range(2000):
+        t0 = clock()
+        samples.append(clock() - t0)
+    return statistics.median(samples)
+
+
+def fly_ticks(kf, events: list, tick_s: float, overhead_ns: float) -> tuple[dict[str, float], object]:
+    """Feed `events` tick by tick (estimate() at each tick's end). Mean thread CPU microseconds per call
+    kind and per tick after WARMUP_S, and the final estimate.
+
+    CPU time of this thread, not wall time: on the shared machine a wall clock also counts the time
+    other processes hold the core."""
+    spent = dict.fromkeys((*CALLS, BUILD), 0.0)
+    calls = dict.fromkeys((*CALLS, BUILD), 0)
+    ticks = 0
+    clock = time.thread_time_ns
+    tick_end = tick_s
+
+    def timed(kind: str, fn, *args):
+        t0 = clock()
+        result = fn(*args)
+        if tick_end > WARMUP_S:
+            spent[kind] += clock() - t0 - overhead_ns
+            calls[kind] += 1
+        return result
+
+    last_imu = None
+    for arrival_s, msg in events:
+        while arrival_s >= tick_end:
+            if kf.initialised:
+                timed("estimate", kf.estimate)
+                if last_imu is not None:  # a duplicate changes nothing but the counters (untimed)
+                    kf.add_imu(last_imu)
+                    timed(BUILD, kf.estimate)
+            ticks += tick_end > WARMUP_S
+            tick_end += tick_s
         if isinstance(msg, ImuSample):
-            t0 = clock()
-            kf.add_imu(msg)
-            dt = clock() - t0
-            if k >= warmup_events:
-                t_imu += dt
-                n_imu += 1
+            timed("add_imu", kf.add_imu, msg)
+            last_imu = msg
         else:
-            t0 = clock()
-            kf.add_mocap(msg)
-            dt = clock() - t0
-            if k >= warmup_events:
-                t_mocap += dt
-                n_mocap += 1
-    return 1e6 * t_imu / n_imu, 1e6 * t_mocap / n_mocap, n_imu, n_mocap
+            timed("add_mocap", kf.add_mocap, msg)
+    per_call = {k: 1e-3 * spent[k] / max(calls[k], 1) for k in (*CALLS, BUILD)}
+    per_call["tick"] = 1e-3 * sum(spent[k] for k in CALLS) / max(ticks, 1)
+    return per_call, kf.estimate()
+
+
+def difference_in_sigma(a, b) -> float:
+    """Largest |a - b| of position and velocity over b's own standard deviations."""
+    diffs = np.concatenate([a.position_enu_m - b.position_enu_m, a.velocity_enu_mps - b.velocity_enu_mps])
+    return float(np.max(np.abs(diffs) / b.std_dev[0:6]))
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=10.0, help="flight length (s)")
-    parser.add_argument("--naive-seconds", type=float, default=1.5,
-                        help="flight length for the (slow) naive baseline, its first seconds of the same run")
+    parser.add_argument("--seconds", type=float, default=6.0, help="flight length per case (s)")
+    parser.add_argument("--repeats", type=int, default=5, help="interleaved runs per filter; medians shown")
+    parser.add_argument("--baseline-commit", default=BASELINE_COMMIT)
     args = parser.parse_args(argv)
     vehicle, room = load_vehicle("crazyflie"), load_mocap_room("vicon")
-    flight = Flight(duration_s=args.seconds)
-    print(f"estimator bench: {args.seconds:.0f} s synthetic 1 m/s circle, IMU {vehicle.imu.rate_hz:.0f} Hz, "
-          f"mocap {room.rate_hz:.0f} Hz")
-    print(f"{'case':34s} {'us/add_imu':>11s} {'us/add_mocap':>13s}   budget 60 / 150 us")
-    cases = (("vicon latency 5 ms", LinkFaults()),
-             ("latency 20 ms", LinkFaults(mocap_latency_s=0.020)),
-             ("20 ms + 15 ms jitter", LinkFaults(mocap_latency_s=0.020, mocap_jitter_s=0.015)))
-    for label, faults in cases:
-        run = simulate(flight, vehicle.imu, room, np.random.default_rng(7), faults)
-        warmup = len(run.events) // 10
-        cand = time_filter(ErrorStateKF(vehicle, room), run.events, warmup)
-        naive_events = [e for e in run.events if e[0] < args.naive_seconds]
-        naive = time_filter(NaiveErrorStateKF(vehicle, room), naive_events, len(naive_events) // 5)
-        print(f"{'  candidate, ' + label:34s} {cand[0]:11.1f} {cand[1]:13.1f}")
-        print(f"{'  naive, ' + label:34s} {naive[0]:11.1f} {naive[1]:13.1f}   "
-              f"(candidate faster x{naive[0] / cand[0]:.1f} / x{naive[1] / cand[1]:.1f})")
+    baseline = load_baseline(args.baseline_commit)
+    filters = {"candidate": ErrorStateKF} | ({"baseline": baseline} if baseline else {})
+    overhead_ns = clock_overhead_ns()
+    print(f"estimator bench: {args.seconds:.0f} s synthetic 1 m/s circle per case, IMU {vehicle.imu.rate_hz:.0f} Hz, "
+          f"mocap {room.rate_hz:.0f} Hz; median of {args.repeats} interleaved runs, thread CPU us per call "
+          f"(clock overhead {1e-3 * overhead_ns:.2f} us subtracted; baseline = {args.baseline_commit[:9]})")
+    header = f"{'mode / case':40s} {'filter':10s}" + "".join(f"{k:>11s}" for k in COLUMNS)
+    print(header)
+    for mode, imu_per_tick in IMU_SAMPLES_PER_TICK.items():
+        tick_s = imu_per_tick / vehicle.imu.rate_hz
+        for label, faults in CASES:
+            run = simulate(Flight(duration_s=args.seconds), vehicle.imu, room, np.random.default_rng(7), faults)
+            results: dict[str, list[dict[str, float]]] = {name: [] for name in filters}
+            finals = {}
+            for _ in range(args.repeats):
+                for name, cls in filters.items():
+                    gc.collect()
+                    per_call, finals[name] = fly_ticks(cls(vehicle, room), run.events, tick_s, overhead_ns)
+                    results[name].append(per_call)
+            medians = {name: {k: statistics.median(r[k] for r in runs) for k in COLUMNS}
+                       for name, runs in results.items()}
+            for name in ("baseline", "candidate"):
+                if name in medians:
+                    print(f"{mode + ', ' + label:40s} {name:10s}"
+                          + "".join(f"{medians[name][k]:11.1f}" for k in COLUMNS))
+            if "baseline" in medians:
+                ratio = "".join(f"{medians['baseline'][k] / medians['candidate'][k]:10.2f}x"
+                                for k in COLUMNS)
+                per_sim_s = {name: 1e-3 * m["tick"] / tick_s for name, m in medians.items()}  # ms per sim s
+                print(f"{'':40s} {'speed-up':10s}{ratio}   CPU per simulated s {per_sim_s['baseline']:.1f} -> "
+                      f"{per_sim_s['candidate']:.1f} ms; final estimates differ by "
+                      f"{difference_in_sigma(finals['candidate'], finals['baseline']):.1e} sigma")
 
 
 if __name__ == "__main__":

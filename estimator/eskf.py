@@ -23,10 +23,12 @@ Mocap measurement: z = [p_m - p ; Log(q^* (x) q_m)] = H dx + n, H = [I 0 0 0 0; 
     R = diag(s_p^2 I3, s_theta^2 I3) of the room (times noise.mocap_noise_variance_scale).
 
 What filterpy does (one filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state):
-predict(F=F, Q=Q) computes x = F x and P = F P F' + Q; update(z, R=R, H=H) computes y = z - H x,
-S = H P H' + R, S^-1 (numpy.linalg.inv), K = P H' S^-1, x = x + K y and the Joseph form
+predict() (F and Q set on it) computes x = F x and P = F P F' + Q; update(z, H=H) computes y = z - H x,
+S = H P H' + R, S^-1 (its `inv` hook, set here to LAPACK gesv: numpy.linalg.inv runs the same routine
+behind ~7 us of argument checks), K = P H' S^-1, x = x + K y and the Joseph form
 P = (I - K H) P (I - K H)' + K R K'. What this module does around it: the nominal propagation above
-(plain floats), building F and Q each interval, forming z from the nominal state, the Mahalanobis gate
+(plain floats), building F each interval (the identity plus one numpy put of its 48 other entries) and
+Q (depends on dt alone: cached per interval length), forming z from the nominal state, the Mahalanobis gate
 d^2 = y' S^-1 y on filterpy's y and S^-1 (a rejected frame keeps the prior P: the update is discarded),
 injecting dx into the nominal state (q <- q (x) Exp(dtheta)), the ESKF reset P <- G P G' with
 G_theta = I - [dtheta/2]x (Sola eq. 287), setting x back to 0, and the time bookkeeping below.
@@ -39,15 +41,21 @@ re-propagates through the buffered IMU samples, re-applying later mocap frames, 
 Late, reordered and out-of-order frames of either kind take that same path; during a replay earlier
 decisions (accept / reject / re-initialise) are kept, not re-gated, and the (F, Q) of intervals that did
 not change are reused (linearised before the replay's corrections: a second-order difference, below
-1e-3 of the estimate's own sigma in the tests), so a replayed IMU sample costs ~9 us instead of ~15 us.
+1e-3 of the estimate's own sigma in the tests): a replayed IMU sample costs its nominal step and one
+predict, not a new F.
+Covariances are propagated lazily: an IMU node gets its nominal state and (F, Q) when processed, its
+P = F P_before F' + Q (filterpy predict) only when something needs it - a mocap frame after it,
+estimate(), predict_to(), or its becoming the buffer's base - so when several samples and a late frame
+arrive between two estimate() calls (attitude mode: 5 IMU samples and 1 frame per tick) each interval is
+predicted once, not once per replay. Same (F, Q) in the same order: bit for bit the eager result.
 Frames older than the buffer are dropped and counted; a frame with the same sample time as one already
 held is a duplicate and ignored.
-A mocap frame from the future (sample time after the newest IMU sample) is gated at once against a
-prediction and applied when the IMU catches up. Lost IMU frames: the interval is integrated between
+A mocap frame from the future (sample time after the newest IMU sample) is held, then gated and applied
+when the IMU stream reaches its sample time. Lost IMU frames: the interval is integrated between
 the samples either side of the gap (signal interpolated linearly, sub-steps of at most imu.max_step_s),
 and Q grows with its length; gaps are counted when their nodes leave the buffer, i.e. once final.
 predict_to(t) makes one step from the newest sample holding it, with filterpy.kalman.predict (the
-functional form), so the filter itself is untouched.
+functional form), so the filter itself is untouched. estimate() is cached until the next input.
 
 Outliers and re-initialisation. A frame with d^2 > chi2.ppf(gating.chi2_probability, 6) is rejected and
 counted. A frame failing the gate instead re-initialises the filter - position and attitude := the
@@ -68,6 +76,7 @@ from pathlib import Path
 import numpy as np
 from filterpy.kalman import KalmanFilter
 from filterpy.kalman import predict as filterpy_predict
+from scipy.linalg.lapack import dgesv as lapack_gesv
 from scipy.stats import chi2
 
 from estimator.rotation import attitude_error, quat_exp, quat_multiply, quat_normalise, quat_to_matrix, rotate
@@ -86,8 +95,26 @@ ERROR_STATE_LABELS = (
 POSITION, VELOCITY, ATTITUDE, ACCEL_BIAS, GYRO_BIAS = (slice(i, i + 3) for i in range(0, 15, 3))
 N_ERROR = 15
 N_MOCAP = 6
-# Rows/columns of the 3x3 blocks written into F each interval (see _transition for the values' order).
-_F_BLOCKS = ((0, 6), (0, 9), (3, 6), (3, 9))
+_IDENTITY_ERROR = np.eye(N_ERROR)
+_IDENTITY_MOCAP = np.eye(N_MOCAP)  # right-hand side of the gesv inverse (never overwritten)
+
+
+def _flat(cells) -> np.ndarray:
+    return np.array([r * N_ERROR + c for r, c in cells])
+
+
+# Flat indices of the entries of F other than its unit diagonal, in _transition's order: dp <- dv, the 6x6
+# block of rows dp, dv by columns dtheta, db_a, dtheta <- dtheta off the diagonal, dtheta <- db_g.
+_F_INDEX = _flat([(i, 3 + i) for i in range(3)] + [(r, c) for r in range(6) for c in range(6, 12)]
+                 + [(6, 7), (6, 8), (7, 6), (7, 8), (8, 6), (8, 7)] + [(6 + i, 12 + i) for i in range(3)])
+# Q's non-zero entries in _process_noise's order: pp, pv and vp (per axis), then the diagonal from vv on.
+_Q_INDEX = _flat([(i, i) for i in range(3)] + [(i, 3 + i) for i in range(3)] + [(3 + i, i) for i in range(3)]
+                 + [(i, i) for i in range(3, N_ERROR)])
+# The attitude block of the reset Jacobian G (row-major), in _inject.
+_G_INDEX = _flat([(r, c) for r in range(6, 9) for c in range(6, 9)])
+# Interval lengths whose Q is kept: IMU intervals take a handful of values, mocap frames split them at
+# arbitrary times, so the cache is cleared when full.
+_Q_CACHE_SIZE = 64
 
 _IMU, _MOCAP = 0, 1
 _NEW, _ACCEPTED, _REJECTED, _REINIT, _INIT = range(5)
@@ -160,7 +187,8 @@ class EstimatorHealth:
 
 @dataclass(frozen=True)
 class Estimate:
-    """The filter's state at `time_s` (vehicle clock). Arrays are copies the caller may keep."""
+    """The filter's state at `time_s` (vehicle clock). Arrays are copies the caller may keep (the vectors are
+    views of one array per Estimate); estimate() returns the same Estimate until the filter gets new input."""
 
     time_s: float
     position_enu_m: np.ndarray  # (3,)
@@ -197,7 +225,7 @@ class _Node:
 
 
 def _finite(values) -> bool:
-    return all(math.isfinite(v) for v in values)
+    return all(map(math.isfinite, values))
 
 
 def _pose_valid(pose: MocapPose) -> bool:
@@ -234,13 +262,11 @@ class ErrorStateKF:
         velocity_var = [prm.initial_velocity_sigma_mps**2] * 3
         self._P0_diag = np.array([var_p] * 3 + velocity_var + [var_t] * 3 + bias_var)
         self._kf = KalmanFilter(dim_x=N_ERROR, dim_z=N_MOCAP)
+        self._kf.inv = _inverse  # filterpy's documented hook for S^-1 (default numpy.linalg.inv)
+        # Set as attributes, not passed per call: filterpy runs numpy.isscalar on a passed R or Q (~0.6 us).
+        self._kf.R = self._R
         self._zero_dx = np.zeros((N_ERROR, 1))  # never written in place (filterpy rebinds x)
-        self._F = np.eye(N_ERROR)
-        self._F_flat = self._F.reshape(-1)
-        self._F_index = self._f_index()
-        self._Q = np.zeros((N_ERROR, N_ERROR))
-        self._Q_flat = self._Q.reshape(-1)
-        self._Q_index = self._q_index()
+        self._q_cache: dict[float, np.ndarray] = {}
         self._reset_bookkeeping()
         self._waiting_poses: list[MocapPose] = []  # poses seen before the first IMU sample
 
@@ -266,10 +292,11 @@ class ErrorStateKF:
 
     def add_imu(self, sample: ImuSample) -> None:
         """Propagate to the sample's time (or insert it in the buffer and replay if it is late)."""
+        self._estimate = None
         t = float(sample.time_s)
         f = tuple(map(float, sample.specific_force_flu_mps2))
         w = tuple(map(float, sample.rate_flu_radps))
-        if not (math.isfinite(t) and len(f) == 3 and len(w) == 3 and _finite(f) and _finite(w)):
+        if not (len(f) == 3 and len(w) == 3 and _finite((t, *f, *w))):
             self._count["invalid_imu"] += 1
             return
         if not self._nodes or self._nodes[0].f is None:
@@ -284,6 +311,7 @@ class ErrorStateKF:
 
     def add_mocap(self, pose: MocapPose) -> bool:
         """Fuse a pose at its sample time. True if accepted (or used to re-initialise)."""
+        self._estimate = None
         if not _pose_valid(pose):
             self._count["invalid_mocap"] += 1
             return False
@@ -317,11 +345,18 @@ class ErrorStateKF:
         return node.status in (_ACCEPTED, _REINIT)
 
     def estimate(self) -> Estimate:
-        """The state after the newest sample (all NaN and healthy=False before the first pose)."""
-        if not self._nodes:
-            return self._nan_estimate()
-        node = self._nodes[-1]
-        return self._make_estimate(node.time_s, node.x, node.P, node.w)
+        """The state after the newest sample (all NaN and healthy=False before the first pose).
+
+        Cached: calls with no add_imu / add_mocap / initialise in between return the same Estimate.
+        """
+        if self._estimate is None:
+            if not self._nodes:
+                self._estimate = self._nan_estimate()
+            else:
+                last = len(self._nodes) - 1
+                node = self._nodes[last]
+                self._estimate = self._make_estimate(node.time_s, node.x, self._covariance_at(last), node.w)
+        return self._estimate
 
     def predict_to(self, t_s: float) -> Estimate:
         """The state propagated to t_s (vehicle clock) holding the newest IMU sample; the filter is unchanged.
@@ -332,13 +367,15 @@ class ErrorStateKF:
         """
         if not self._nodes:
             return self._nan_estimate()
-        node = self._nodes[-1]
+        last = len(self._nodes) - 1
+        node = self._nodes[last]
         dt = float(t_s) - node.time_s
         if node.f is None or not dt > 0.0:
             return self.estimate()
         x, r0, f, w = self._nominal_step(node.x, node.f, node.w, node.f, node.w, dt)
         F, Q = self._transition(r0, f, w, dt)
-        _, P = filterpy_predict(self._zero_dx, node.P, F, Q)  # functional form: self._kf stays untouched
+        # functional form: self._kf stays untouched
+        _, P = filterpy_predict(self._zero_dx, self._covariance_at(last), F, Q)
         return self._make_estimate(float(t_s), x, P, node.w)
 
     def health(self) -> EstimatorHealth:
@@ -346,15 +383,15 @@ class ErrorStateKF:
         # A frame from the future (queued until the IMU catches up) must not make the age negative.
         age = max(0.0, self._times[-1] - self._last_accepted_s) if self._nodes else math.inf
         c = self._count
-        return EstimatorHealth(
-            initialised=bool(self._nodes), mocap_age_s=age, blackout=age > self.params.blackout_s,
-            accepted_mocap=c["accepted_mocap"], rejected_outliers=c["rejected_outliers"],
-            consecutive_rejections=self._consecutive_rejections, reinitialisations=c["reinitialisations"],
-            duplicate_mocap=c["duplicate_mocap"], stale_mocap=c["stale_mocap"],
-            invalid_mocap=c["invalid_mocap"],
-            imu_gaps=c["imu_gaps"], lost_imu=c["lost_imu"], reordered_imu=c["reordered_imu"],
-            stale_imu=c["stale_imu"], duplicate_imu=c["duplicate_imu"], invalid_imu=c["invalid_imu"],
-        )
+        return _frozen(EstimatorHealth, {
+            "initialised": bool(self._nodes), "mocap_age_s": age, "blackout": age > self.params.blackout_s,
+            "accepted_mocap": c["accepted_mocap"], "rejected_outliers": c["rejected_outliers"],
+            "consecutive_rejections": self._consecutive_rejections, "reinitialisations": c["reinitialisations"],
+            "duplicate_mocap": c["duplicate_mocap"], "stale_mocap": c["stale_mocap"],
+            "invalid_mocap": c["invalid_mocap"], "imu_gaps": c["imu_gaps"], "lost_imu": c["lost_imu"],
+            "reordered_imu": c["reordered_imu"], "stale_imu": c["stale_imu"], "duplicate_imu": c["duplicate_imu"],
+            "invalid_imu": c["invalid_imu"],
+        })
 
     # ------------------------------------------------------------------ timeline bookkeeping
 
@@ -380,6 +417,7 @@ class ErrorStateKF:
         self._last_accepted_s = -math.inf
         self._consecutive_rejections = 0
         self._last_trimmed_imu_s: float | None = None
+        self._estimate: Estimate | None = None  # estimate()'s cache, cleared by every input
         self._count = dict.fromkeys(
             ("accepted_mocap", "rejected_outliers", "reinitialisations", "duplicate_mocap", "stale_mocap",
              "invalid_mocap", "imu_gaps", "lost_imu", "reordered_imu", "stale_imu", "duplicate_imu",
@@ -392,9 +430,13 @@ class ErrorStateKF:
             base.f, base.w = node.f, node.w
         start = len(self._nodes)
         t = node.time_s
+        if not self._pending or self._pending[0].time_s > t:  # nothing released (sorted by time)
+            self._advance_imu(node, self._nodes[-1], None)
+            self._nodes.append(node)
+            self._times.append(t)
+            return
         released = [m for m in self._pending if m.time_s <= t]
-        if released:
-            self._pending = [m for m in self._pending if m.time_s > t]
+        self._pending = [m for m in self._pending if m.time_s > t]
         for m in [m for m in released if m.time_s < t] + [node] + [m for m in released if m.time_s == t]:
             self._nodes.append(m)
             self._times.append(m.time_s)
@@ -449,31 +491,76 @@ class ErrorStateKF:
         Covariance transitions stored by an earlier pass over an unchanged interval are reused: they were
         linearised at the nominal state before this replay's corrections, a second-order difference for
         gated corrections, but not after a re-initialisation, which may move the attitude far.
+        IMU nodes get their nominal state and (F, Q) here; their P waits for _covariance_at.
         """
-        self._reuse_transitions = True
-        for j in range(i, len(self._nodes)):
-            self._process(j)
+        nodes = self._nodes
+        reuse = True
+        for j in range(i, len(nodes)):
+            node, prev = nodes[j], nodes[j - 1]
+            if node.kind == _IMU:
+                self._advance_imu(node, prev, node.transition if reuse and node.start_s == prev.time_s else None)
+            elif not self._process_mocap(j, reuse):
+                reuse = False
 
-    def _process(self, j: int) -> None:
-        node, prev = self._nodes[j], self._nodes[j - 1]
-        if node.kind == _MOCAP:
-            node.f, node.w = self._signal_at(j)
-        stored = node.transition if self._reuse_transitions and node.start_s == prev.time_s else None
-        x, P, node.transition = self._propagate(prev.x, prev.P, prev.f, prev.w, node.f, node.w,
-                                                node.time_s - prev.time_s, stored)
+    def _advance_imu(self, node: _Node, prev: _Node, stored: tuple | None) -> None:
+        """Nominal state and (F, Q) of IMU node `node` from `prev`; its P is left pending."""
+        node.x, node.transition = self._propagate(prev.x, prev.f, prev.w, node.f, node.w,
+                                                  node.time_s - prev.time_s, stored)
         node.start_s = prev.time_s
-        if node.kind == _MOCAP:
-            if node.status == _NEW:
-                node.status = self._decide(self._innovate(x, P, node), node.time_s)
-                if node.status == _ACCEPTED:
-                    x, P = self._inject(x)
-            elif node.status == _ACCEPTED:
-                self._innovate(x, P, node)
+        node.P = None
+
+    def _process_mocap(self, j: int, reuse: bool) -> bool:
+        """Propagate to mocap node j, then gate / update / inject / re-initialise; False after a
+        re-initialisation (later transitions must not be reused)."""
+        node, prev = self._nodes[j], self._nodes[j - 1]
+        node.f, node.w = self._signal_at(j)
+        stored = node.transition if reuse and node.start_s == prev.time_s else None
+        x, node.transition = self._propagate(prev.x, prev.f, prev.w, node.f, node.w,
+                                             node.time_s - prev.time_s, stored)
+        node.start_s = prev.time_s
+        P = self._covariance_at(j - 1)
+        if node.transition is not None:
+            P = self._predict(P, node.transition)
+        if node.status == _NEW:
+            node.status = self._decide(self._innovate(x, P, node), node.time_s)
+            if node.status == _ACCEPTED:
                 x, P = self._inject(x)
-            if node.status == _REINIT:
-                x, P = self._reinitialised(x, P, node)
-                self._reuse_transitions = False
+        elif node.status == _ACCEPTED:
+            self._innovate(x, P, node)
+            x, P = self._inject(x)
+        if node.status == _REINIT:
+            x, P = self._reinitialised(x, P, node)
+            reuse = False
         node.x, node.P = x, P
+        return reuse
+
+    def _covariance_at(self, j: int) -> np.ndarray:
+        """P of node j, running filterpy predict over the intervals whose P is still pending.
+
+        Lazy on purpose: a replay after a late mocap frame changes every later node, and when nothing asks
+        for their P in between (several samples per flight-loop tick) each interval is predicted once
+        instead of once per pass. Same (F, Q), same order: the same bits as predicting eagerly.
+        """
+        nodes = self._nodes
+        k = j
+        while nodes[k].P is None:  # nodes[0].P is always set
+            k -= 1
+        P = nodes[k].P
+        for m in range(k + 1, j + 1):
+            node = nodes[m]
+            if node.transition is not None:  # None: zero-length interval, P unchanged
+                P = self._predict(P, node.transition)
+            node.P = P
+        return P
+
+    def _predict(self, P: np.ndarray, transition: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """filterpy predict of P over one stored (F, Q) (x is the zero error state)."""
+        kf = self._kf
+        kf.x = self._zero_dx
+        kf.P = P
+        kf.F, kf.Q = transition  # attributes, not arguments: see __init__
+        kf.predict()
+        return kf.P
 
     def _signal_at(self, j: int) -> tuple[tuple, tuple]:
         """IMU signal at a mocap node: linear between the node before and the next IMU sample."""
@@ -488,9 +575,12 @@ class ErrorStateKF:
 
     def _trim(self) -> None:
         """Forget nodes older than the buffer, keeping one before the cut as the rollback base."""
-        k = bisect.bisect_left(self._times, self._times[-1] - self.params.buffer_length_s) - 1
-        if k < _TRIM_CHUNK:
-            return
+        times = self._times
+        cut_s = times[-1] - self.params.buffer_length_s
+        if len(times) <= _TRIM_CHUNK or times[_TRIM_CHUNK] >= cut_s:
+            return  # fewer than _TRIM_CHUNK + 1 nodes before the cut (the bisect below would say k < chunk)
+        k = bisect.bisect_left(times, cut_s) - 1
+        self._covariance_at(k)  # the new base holds its P
         for node in self._nodes[:k]:
             if node.kind == _IMU:
                 self._count_gap(node.time_s)
@@ -529,7 +619,7 @@ class ErrorStateKF:
         kf = self._kf
         kf.x = self._zero_dx
         kf.P = P
-        kf.update(z, R=self._R, H=self._H)
+        kf.update(z, H=self._H)  # R: the attribute set in __init__
         y = kf.y[:, 0]
         return float(y @ kf.SI @ y)
 
@@ -539,14 +629,13 @@ class ErrorStateKF:
         dx = kf.x[:, 0].tolist()
         kf.x = self._zero_dx
         q = quat_normalise(quat_multiply(x[6:10], quat_exp(dx[6], dx[7], dx[8])))
-        x_new = (*(x[k] + dx[k] for k in range(6)), *q, *(x[k + 1] + dx[k] for k in range(9, 15)))
+        x_new = (x[0] + dx[0], x[1] + dx[1], x[2] + dx[2], x[3] + dx[3], x[4] + dx[4], x[5] + dx[5], *q,
+                 x[10] + dx[9], x[11] + dx[10], x[12] + dx[11], x[13] + dx[12], x[14] + dx[13], x[15] + dx[14])
         hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
-        g = np.array(((1.0, hz, -hy), (-hz, 1.0, hx), (hy, -hx, 1.0)))  # I - [dtheta/2]x
-        P = kf.P
-        P[ATTITUDE, :] = g @ P[ATTITUDE, :]
-        P[:, ATTITUDE] = P[:, ATTITUDE] @ g.T
-        P = 0.5 * (P + P.T)
-        return x_new, P
+        G = _IDENTITY_ERROR.copy()
+        G.put(_G_INDEX, (1.0, hz, -hy, -hz, 1.0, hx, hy, -hx, 1.0))  # G_theta = I - [dtheta/2]x
+        P = G @ kf.P @ G.T
+        return x_new, 0.5 * (P + P.T)
 
     def _reinitialised(self, x: tuple, P: np.ndarray, node: _Node) -> tuple[tuple, np.ndarray]:
         x_new = (*node.position, *x[3:6], *node.attitude, *x[10:16])
@@ -557,45 +646,38 @@ class ErrorStateKF:
 
     # ------------------------------------------------------------------ propagation
 
-    def _propagate(self, x: tuple, P: np.ndarray, f0, w0, f1, w1, dt: float,
-                   transition: tuple | None = None) -> tuple[tuple, np.ndarray, tuple | None]:
-        """Propagate over dt with signals (f0, w0) at the start and (f1, w1) at the end.
+    def _propagate(self, x: tuple, f0, w0, f1, w1, dt: float,
+                   transition: tuple | None = None) -> tuple[tuple, tuple | None]:
+        """Nominal state after dt with signals (f0, w0) at the start and (f1, w1) at the end, and (F, Q).
 
         Intervals longer than imu.max_step_s are integrated in equal sub-steps (signals interpolated);
         their F and Q are chained into one F = F_n..F_1, Q = F_n(..)F_n' + Q_n for a single filterpy
-        predict. Given `transition` (F, Q) - stored from an earlier pass over this same interval - the
-        covariance reuses it and only the nominal state is recomputed. Returns (x, P, (F, Q)).
+        predict. Given `transition` (F, Q) - stored from an earlier pass over this same interval - only
+        the nominal state is recomputed. Returns (x, (F, Q)), (x, None) for dt <= 0 (P unchanged).
         """
         if dt <= 0.0:
-            return x, P, transition
+            return x, transition
         n = math.ceil(dt / self.params.imu_max_step_s - 1e-9)  # slack: 2.0000000001 steps are 2
         if n <= 1:
             x, r0, f, w = self._nominal_step(x, f0, w0, f1, w1, dt)
             if transition is None:
-                F, Q = self._transition(r0, f, w, dt)
-                transition = (F.copy(), Q.copy())
-        else:
-            h = dt / n
-            fa, wa = f0, w0
-            F_total = Q_total = None
-            for k in range(1, n + 1):
-                fb, wb = _lerp(f0, f1, k / n), _lerp(w0, w1, k / n)
-                x, r0, f, w = self._nominal_step(x, fa, wa, fb, wb, h)
-                if transition is None:
-                    F, Q = self._transition(r0, f, w, h)
-                    if F_total is None:
-                        F_total, Q_total = F.copy(), Q.copy()
-                    else:
-                        F_total = F @ F_total
-                        Q_total = F @ Q_total @ F.T + Q
-                fa, wa = fb, wb
+                transition = self._transition(r0, f, w, dt)
+            return x, transition
+        h = dt / n
+        fa, wa = f0, w0
+        F_total = Q_total = None
+        for k in range(1, n + 1):
+            fb, wb = _lerp(f0, f1, k / n), _lerp(w0, w1, k / n)
+            x, r0, f, w = self._nominal_step(x, fa, wa, fb, wb, h)
             if transition is None:
-                transition = (F_total, Q_total)
-        kf = self._kf
-        kf.x = self._zero_dx
-        kf.P = P
-        kf.predict(F=transition[0], Q=transition[1])
-        return x, kf.P, transition
+                F, Q = self._transition(r0, f, w, h)
+                if F_total is None:
+                    F_total, Q_total = F, Q
+                else:
+                    F_total = F @ F_total
+                    Q_total = F @ Q_total @ F.T + Q
+            fa, wa = fb, wb
+        return x, transition if transition is not None else (F_total, Q_total)
 
     def _nominal_step(self, x: tuple, f0, w0, f1, w1, dt: float) -> tuple[tuple, tuple, tuple, tuple]:
         """Trapezoidal nominal propagation (module docstring). Returns x1, R(q0), mean f and w (bias-free)."""
@@ -606,9 +688,8 @@ class ErrorStateKF:
         q0 = (qw, qx, qy, qz)
         r0 = quat_to_matrix(q0)
         q1 = quat_normalise(quat_multiply(q0, quat_exp(wx * dt, wy * dt, wz * dt)))
-        r1 = quat_to_matrix(q1)
         a0 = rotate(r0, f0[0] - bax, f0[1] - bay, f0[2] - baz)
-        a1 = rotate(r1, f1[0] - bax, f1[1] - bay, f1[2] - baz)
+        a1 = rotate(quat_to_matrix(q1), f1[0] - bax, f1[1] - bay, f1[2] - baz)
         ax = 0.5 * (a0[0] + a1[0])
         ay = 0.5 * (a0[1] + a1[1])
         az = 0.5 * (a0[2] + a1[2]) - self._g
@@ -619,60 +700,69 @@ class ErrorStateKF:
         return x1, r0, f, (wx, wy, wz)
 
     def _transition(self, r: tuple, f: tuple, w: tuple, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """First-order error transition F and process noise Q over dt (see the module docstring).
+        """First-order error transition F (a new array) and process noise Q (shared: read only) over dt.
 
         r: R(q0) row-major; f: bias-corrected specific force FLU; w: bias-corrected rate FLU.
-        F and Q are reused buffers, valid until the next call.
+        F is the identity with its 48 other entries put in by one call (numpy block writes cost ~0.5 us
+        each); Q depends on dt alone and is cached (_process_noise).
         """
         fx, fy, fz = f
+        r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
         # M = R [f]x, row by row
-        m = []
-        for i in (0, 3, 6):
-            r0, r1, r2 = r[i], r[i + 1], r[i + 2]
-            m += (r1 * fz - r2 * fy, r2 * fx - r0 * fz, r0 * fy - r1 * fx)
-        h = -0.5 * dt * dt
-        values = [dt, dt, dt]  # dp <- dv diagonal
-        values += [h * v for v in m] + [h * v for v in r]  # dp <- dtheta, db_a
-        values += [-dt * v for v in m] + [-dt * v for v in r]  # dv <- dtheta, db_a
+        m0, m1, m2 = r1 * fz - r2 * fy, r2 * fx - r0 * fz, r0 * fy - r1 * fx
+        m3, m4, m5 = r4 * fz - r5 * fy, r5 * fx - r3 * fz, r3 * fy - r4 * fx
+        m6, m7, m8 = r7 * fz - r8 * fy, r8 * fx - r6 * fz, r6 * fy - r7 * fx
+        h, k = -0.5 * dt * dt, -dt
         wx, wy, wz = w[0] * dt, w[1] * dt, w[2] * dt
-        values += [wz, -wy, -wz, wx, wy, -wx]  # dtheta <- dtheta off-diagonal: -[w dt]x
-        values += [-dt, -dt, -dt]  # dtheta <- db_g
-        self._F_flat[self._F_index] = values
-        sa, sg = self._accel_psd, self._gyro_psd
-        qv = sa * dt
-        self._Q_flat[self._Q_index] = [qv * dt * dt / 3.0] * 3 + [qv * dt * 0.5] * 6 + [qv] * 3 + \
-            [sg * dt] * 3 + [self._accel_bias_psd * dt] * 3 + [self._gyro_bias_psd * dt] * 3
-        return self._F, self._Q
+        F = _IDENTITY_ERROR.copy()
+        F.put(_F_INDEX, (
+            dt, dt, dt,  # dp <- dv: I dt
+            h * m0, h * m1, h * m2, h * r0, h * r1, h * r2,  # dp <- dtheta: -R[f]x dt^2/2, db_a: -R dt^2/2
+            h * m3, h * m4, h * m5, h * r3, h * r4, h * r5,
+            h * m6, h * m7, h * m8, h * r6, h * r7, h * r8,
+            k * m0, k * m1, k * m2, k * r0, k * r1, k * r2,  # dv <- dtheta: -R[f]x dt, db_a: -R dt
+            k * m3, k * m4, k * m5, k * r3, k * r4, k * r5,
+            k * m6, k * m7, k * m8, k * r6, k * r7, k * r8,
+            wz, -wy, -wz, wx, wy, -wx,  # dtheta <- dtheta off the diagonal: -[w dt]x
+            k, k, k,  # dtheta <- db_g: -I dt
+        ))
+        return F, self._process_noise(dt)
 
-    @staticmethod
-    def _f_index() -> np.ndarray:
-        idx = [(i, 3 + i) for i in range(3)]
-        for r0, c0 in _F_BLOCKS:
-            idx += [(r0 + i, c0 + j) for i in range(3) for j in range(3)]
-        idx += [(6, 7), (6, 8), (7, 6), (7, 8), (8, 6), (8, 7)]
-        idx += [(6 + i, 12 + i) for i in range(3)]
-        return np.array([r * N_ERROR + c for r, c in idx])
-
-    @staticmethod
-    def _q_index() -> np.ndarray:
-        idx = [(i, i) for i in range(3)]
-        idx += [(i, 3 + i) for i in range(3)] + [(3 + i, i) for i in range(3)]
-        idx += [(i, i) for i in range(3, 15)]
-        return np.array([r * N_ERROR + c for r, c in idx])
+    def _process_noise(self, dt: float) -> np.ndarray:
+        """Q over dt (module docstring), read-only, cached by dt: IMU intervals take a few lengths."""
+        Q = self._q_cache.get(dt)
+        if Q is not None:
+            return Q
+        if len(self._q_cache) >= _Q_CACHE_SIZE:
+            self._q_cache.clear()  # mocap frames split intervals at arbitrary times
+        qv = self._accel_psd * dt
+        qp, qpv = qv * dt * dt / 3.0, qv * dt * 0.5
+        qt, qba, qbg = self._gyro_psd * dt, self._accel_bias_psd * dt, self._gyro_bias_psd * dt
+        Q = np.zeros((N_ERROR, N_ERROR))
+        Q.put(_Q_INDEX, (qp, qp, qp, qpv, qpv, qpv, qpv, qpv, qpv, qv, qv, qv, qt, qt, qt,
+                         qba, qba, qba, qbg, qbg, qbg))
+        Q.flags.writeable = False  # shared by every interval of this length
+        self._q_cache[dt] = Q
+        return Q
 
     # ------------------------------------------------------------------ output
 
     def _make_estimate(self, t: float, x: tuple, P: np.ndarray, w) -> Estimate:
+        """One array for the 16 state numbers and the rate, sliced into the fields (one conversion)."""
         health = self.health()
-        std = np.sqrt(np.diag(P))
-        bg = np.array(x[13:16])
-        healthy = (not health.blackout) and float(std[POSITION].max()) <= self.params.max_position_sigma_m
-        return Estimate(
-            time_s=t, position_enu_m=np.array(x[0:3]), velocity_enu_mps=np.array(x[3:6]),
-            attitude_wxyz=np.array(x[6:10]), rate_flu_radps=(np.array(w) - bg) if w is not None else -bg,
-            accel_bias_flu_mps2=np.array(x[10:13]), gyro_bias_flu_radps=bg, covariance=P.copy(), std_dev=std,
-            healthy=healthy, health=health,
-        )
+        bgx, bgy, bgz = x[13], x[14], x[15]
+        rate = (w[0] - bgx, w[1] - bgy, w[2] - bgz) if w is not None else (-bgx, -bgy, -bgz)
+        values = np.array((*x, *rate))
+        std = np.sqrt(P.diagonal())
+        sx, sy, sz = std[0:3].tolist()
+        limit = self.params.max_position_sigma_m
+        healthy = (not health.blackout) and sx <= limit and sy <= limit and sz <= limit
+        return _frozen(Estimate, {
+            "time_s": t, "position_enu_m": values[0:3], "velocity_enu_mps": values[3:6],
+            "attitude_wxyz": values[6:10], "rate_flu_radps": values[16:19], "accel_bias_flu_mps2": values[10:13],
+            "gyro_bias_flu_radps": values[13:16], "covariance": P.copy(), "std_dev": std, "healthy": healthy,
+            "health": health,
+        })
 
     def _nan_estimate(self) -> Estimate:
         nan3 = np.full(3, np.nan)
@@ -683,6 +773,27 @@ class ErrorStateKF:
             covariance=np.full((N_ERROR, N_ERROR), np.nan), std_dev=np.full(N_ERROR, np.nan), healthy=False,
             health=self.health(),
         )
+
+
+def _frozen(cls: type, fields: dict):
+    """cls(**fields) for the frozen dataclasses above, without their generated __init__.
+
+    That __init__ sets every field through object.__setattr__ (frozen): ~4 us for Estimate and its
+    EstimatorHealth, half of estimate(). These classes have no __post_init__, defaults or slots, so
+    filling the instance dict is the same object; tests/estimator checks every field is there.
+    """
+    instance = object.__new__(cls)
+    instance.__dict__.update(fields)
+    return instance
+
+
+def _inverse(s: np.ndarray) -> np.ndarray:
+    """S^-1 for filterpy's update by LAPACK gesv (S X = I), the routine numpy.linalg.inv runs too: on the
+    6x6 innovation covariance numpy's argument checks cost ~7 of its ~8 us."""
+    _, _, inverse, info = lapack_gesv(s, _IDENTITY_MOCAP)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"innovation covariance singular or invalid (LAPACK gesv info {info})")
+    return inverse
 
 
 def _lerp(a: tuple, b: tuple, s: float) -> tuple:
