@@ -426,6 +426,7 @@ class Emulator:
         self.nodes = [VehicleNode(config, i + 1, seeds[i], starts[i]) for i in range(config.vehicles)]
         self.dt_s = 1.0 / config.physics_rate_hz
         self.lookahead_s = min(n.uplink_radio.min_latency_s for n in self.nodes) if config.lookahead else 0.0
+        self.horizon_s = 0.0  # lockstep: steps starting before this cannot depend on the last tick's answer
         self.steps = 0  # physics steps done (lockstep: may run ahead of the last tick, see the docstring)
         self.tick = -1  # the last lockstep tick published
         self.tick_steps = 0  # the step count (simulation time) of that tick
@@ -529,10 +530,19 @@ class Emulator:
 
     def can_look_ahead(self, lock: _Lockstep) -> bool:
         """Whether the next physics step can run before the acks of the last tick are in: it starts
-        before any answer to that tick can reach a vehicle (t_k + L)."""
+        before any answer to that tick can act on a vehicle (horizon_s, set when the tick is published)."""
         if self.tick < 0 or not lock.participants:
             return False
-        return self.steps * self.dt_s < self.tick_time_s + self.lookahead_s - LOOKAHEAD_MARGIN_S
+        return self.steps * self.dt_s < self.horizon_s - LOOKAHEAD_MARGIN_S
+
+    def lookahead_horizon_s(self) -> float:
+        """The earliest time an answer to the tick at tick_time_s can act on any vehicle: delivered no
+        earlier than t_k + L (L = the uplink radio's minimum latency), then taken by the vehicle's
+        firmware at its first cycle at or after that (SimVehicle.first_effect_s). t_k without lookahead."""
+        t_k = self.tick_time_s
+        if not self.config.lookahead:
+            return t_k
+        return min(node.sim.first_effect_s(t_k + node.uplink_radio.min_latency_s) for node in self.nodes)
 
     def poll(self, lock: _Lockstep) -> None:
         """Take every pending ack and uplink frame without blocking."""
@@ -594,6 +604,7 @@ class Emulator:
         n = min(n, self.steps)
         self.tick += 1
         self.tick_steps = n
+        self.horizon_s = self.lookahead_horizon_s()
         if self.first_tick_wall is None:
             self.first_tick_wall = time.monotonic()
         time_ns = round(n * self.dt_s * NS_PER_S)

@@ -11,8 +11,10 @@ until the vehicle's clock reaches its release time:
   "truth":    TruthState (telemetry.truth_rate_hz; simulation only);
 plus `crash` (None or a dynamics.Crash) and `truth` (the current TruthState). No transport here.
 
-Within a step at time t, in order: uplinks due by t are applied, the firmware ticks if due (500 Hz)
-and sets the rotor command, sensors and telemetry due by t sample the state at t (stamped t), then the
+Within a step at time t, in order: if the firmware is due (500 Hz), it takes every uplink message
+delivered by t from its radio queue, in delivery order, each stamped with the cycle's time t (the
+commander watchdog counts from it; a TIMESYNC request is answered with it), and ticks, setting the
+rotor command; sensors and telemetry due by t sample the state at t (stamped t), then the
 physics integrates to t + dt. Periodic tasks run on an integer schedule k / rate (no drift), sampled at
 the first physics step at or after each due time; a step with nothing due (half of them at 1 kHz physics
 and 500 Hz tasks) runs the physics alone. Everything random comes from the Generator passed in
@@ -101,10 +103,13 @@ class SimVehicle:
         self._battery = _Schedule(params.battery_rate_hz)
         self._uplinks: list[tuple[float, int, Message]] = []
         self._uplink_seq = 0
-        self._out: list[Output] = []  # in release order unless _out_unsorted
-        self._out_unsorted = False
+        self._out: list[Output] = []  # in release order (everything in it is stamped with its step's time)
         self._mocap_pending: deque[Output] = deque()
-        self._due_s = 0.0  # the earliest of the schedules' due times and the next queued uplink
+        self._due_s = 0.0  # the earliest of the schedules' due times (queued uplinks wait for the firmware)
+        # Whether every firmware cycle k / rate is a physics step start: then an uplink cannot act before
+        # the first cycle at or after its delivery (first_effect_s, the emulator's lockstep lookahead).
+        steps_per_cycle = physics_rate_hz / params.commander_rate_hz
+        self._fw_on_steps = abs(steps_per_cycle - round(steps_per_cycle)) < 1e-9 and round(steps_per_cycle) >= 1
         self.profile = profile
         self.timing_s = {"uplink": 0.0, "firmware": 0.0, "sensors": 0.0, "physics": 0.0}
         if airborne:
@@ -128,16 +133,23 @@ class SimVehicle:
         return self.dynamics.truth()
 
     def handle_uplink(self, message: Message, t_s: float) -> None:
-        """A message the radio delivers at sim time t_s (applied now, or when the clock reaches t_s)."""
+        """A message the radio delivers at sim time t_s: queued for the first firmware cycle at or after
+        t_s (the firmware reads its radio queue once per cycle, as the Crazyflie's commander takes
+        setpoints in its stabilizer loop), so nothing an uplink frame does acts between cycles."""
         if not math.isfinite(t_s):
             raise ValueError(f"uplink delivery time must be finite, got {t_s!r}")
-        if t_s <= self.dynamics.t_s + _EPS_S:
-            self._deliver(message, t_s)
-        else:
-            heapq.heappush(self._uplinks, (t_s, self._uplink_seq, message))
-            self._uplink_seq += 1
-            if t_s < self._due_s:
-                self._due_s = t_s
+        heapq.heappush(self._uplinks, (t_s, self._uplink_seq, message))
+        self._uplink_seq += 1
+
+    def first_effect_s(self, delivery_s: float) -> float:
+        """The earliest simulation time at which a message delivered at or after delivery_s can change
+        anything (a lower bound): the first firmware cycle at or after it, when every firmware cycle
+        falls on a physics step boundary; otherwise delivery_s itself."""
+        if not self._fw_on_steps:
+            return delivery_s
+        period = self._fw.period_s
+        k = math.ceil((delivery_s - _EPS_S) / period)  # - eps: a delivery on a cycle is handled in it
+        return max(delivery_s, k * period)
 
     def step(self) -> None:
         """One physics step (see the module docstring for what happens inside)."""
@@ -147,9 +159,9 @@ class SimVehicle:
         d = self.dynamics
         t = d.t_s
         if t + _EPS_S >= self._due_s:  # most steps at 1 kHz have nothing due but the physics
-            if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
-                self._deliver_due(t)
             if t + _EPS_S >= self._fw.next_s:
+                if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
+                    self._deliver_due(t)
                 self._tick_firmware(t)
             self._sample_due(t)
         d.step()
@@ -168,21 +180,19 @@ class SimVehicle:
         if not out and not mocap_due:
             return []  # most steps
         self._out = []
-        unsorted = self._out_unsorted
-        self._out_unsorted = False
         if mocap_due:
-            unsorted = unsorted or bool(out)  # frames sampled earlier, released among newer outputs
+            unsorted = bool(out)  # frames sampled earlier, released among newer outputs
             while pending and pending[0].release_time_s <= now:
                 out.append(pending.popleft())
-        if unsorted:
-            out.sort(key=_release_time)  # stable: equal times keep their order
+            if unsorted:
+                out.sort(key=_release_time)  # stable: equal times keep their order
         return out
 
     # --- step parts -------------------------------------------------------------------------------
     def _sample_due(self, t: float) -> None:
         """The sensors and telemetry due by t (IMU, mocap, truth), then the next time anything is due."""
         te = t + _EPS_S
-        due = self._uplinks[0][0] if self._uplinks else math.inf
+        due = math.inf
         if te >= self._imu.next_s:
             self._sample_imu(t)
         mocap = self._mocap
@@ -195,21 +205,20 @@ class SimVehicle:
         self._due_s = min(due, self._fw.next_s, self._imu.next_s, self._truth.next_s)
 
     def _deliver_due(self, t: float) -> None:
+        """The firmware cycle at t takes every message delivered by t, in delivery order."""
         queue = self._uplinks
         while queue and queue[0][0] <= t + _EPS_S:
-            arrival, _, message = heapq.heappop(queue)
-            self._deliver(message, arrival)
+            self._deliver(heapq.heappop(queue)[2], t)
 
-    def _deliver(self, message: Message, arrival_s: float) -> None:
+    def _deliver(self, message: Message, cycle_s: float) -> None:
         if isinstance(message, TimeSync):
             self.firmware.uplink_received += 1  # every uplink message counts, TIMESYNC too
             if message.remote_ns == 0:  # a request; tc1 = 0 would read as another request, so >= 1 ns
-                clock_ns = max(1, round(arrival_s * NS_PER_S))
+                clock_ns = max(1, round(cycle_s * NS_PER_S))
                 reply = TimeSync(remote_ns=clock_ns, origin_ns=message.origin_ns)
-                self._out.append(Output(arrival_s, "downlink", reply))
-                self._out_unsorted = True  # arrival_s may precede outputs already queued
+                self._out.append(Output(cycle_s, "downlink", reply))
             return
-        self.firmware.receive(message, arrival_s)
+        self.firmware.receive(message, cycle_s)  # taken now: the same cycle whatever step popped it
 
     def _tick_firmware(self, t: float) -> None:
         self._fw.advance(t)
@@ -249,10 +258,11 @@ class SimVehicle:
         t = self.dynamics.t_s
         t0 = t1 = t2 = t3 = clock()
         if t + _EPS_S >= self._due_s:
-            if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
+            firmware_due = t + _EPS_S >= self._fw.next_s
+            if firmware_due and self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
                 self._deliver_due(t)
             t1 = clock()
-            if t + _EPS_S >= self._fw.next_s:
+            if firmware_due:
                 self._tick_firmware(t)
             t2 = clock()
             self._sample_due(t)

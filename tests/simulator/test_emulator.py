@@ -24,6 +24,7 @@ from link.messages import CommandKind, ThrustMoment, VehicleCommand
 from link.transports import open_transport
 from link.vehicle import load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
+from simulator.firmware import load_firmware_params
 from simulator.radio import load_radio_profile
 
 VEHICLE = load_vehicle("crazyflie")
@@ -164,7 +165,8 @@ def test_lockstep_without_a_ground_station_waits_and_says_so(caplog):
 
 
 def test_a_silent_ground_station_holds_the_clock_at_its_tick_within_the_lookahead(caplog):
-    """After tick 0 the emulator may run ahead by the uplink radio's minimum latency, no further, and
+    """After tick 0 the emulator may run ahead until the first firmware cycle at or after the uplink
+    radio's minimum latency (nothing delivered earlier acts before that cycle), no further, and
     publishes nothing beyond tick 0 until the ack comes."""
     bus = "mem:emulator-wait-2"
     emulator = Emulator(config(connection=bus))
@@ -183,10 +185,24 @@ def test_a_silent_ground_station_holds_the_clock_at_its_tick_within_the_lookahea
         thread.join(5.0)
     assert [t.tick for t in ticks] == [0] and ticks[0].time_ns == 0
     assert published == [] and ticks[0].truth_published == 0
-    limit = load_radio_profile("crazyradio").min_latency_s
-    assert 0 < emulator.steps and (emulator.steps - 1) * emulator.dt_s < limit  # the last step started before L
-    assert emulator.steps * emulator.dt_s < limit + emulator.dt_s
+    cycle_s = 1.0 / load_firmware_params().commander_rate_hz
+    limit = math.ceil(load_radio_profile("crazyradio").min_latency_s / cycle_s) * cycle_s
+    assert 0 < emulator.steps and (emulator.steps - 1) * emulator.dt_s < limit  # the last step started before it
+    assert emulator.steps * emulator.dt_s == pytest.approx(limit)  # ... and the steps reached it
     assert any("to finish tick 0" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.parametrize("rate_hz", [1000.0, 300.0])
+def test_the_lookahead_horizon_is_the_first_firmware_cycle_after_the_minimum_latency(rate_hz):
+    """At 1 kHz every 500 Hz firmware cycle is a step start, so a frame delivered at L acts at the next
+    cycle; at 300 Hz the cycles fall between steps, so only L itself is a safe bound."""
+    emulator = Emulator(config(physics_rate_hz=rate_hz))
+    latency_s = load_radio_profile("crazyradio").min_latency_s
+    cycle_s = 1.0 / load_firmware_params().commander_rate_hz
+    expected = math.ceil(latency_s / cycle_s) * cycle_s if rate_hz == 1000.0 else latency_s
+    assert latency_s < expected or rate_hz == 300.0
+    assert emulator.lookahead_horizon_s() == pytest.approx(expected)
+    assert Emulator(config(physics_rate_hz=rate_hz, lookahead=False)).lookahead_horizon_s() == 0.0
 
 
 def test_no_lookahead_when_disabled_or_when_the_radio_has_no_latency():
@@ -249,7 +265,8 @@ def test_an_uplink_frame_cut_short_is_dropped_as_a_truncated_datagram():
     assert node.parser.counters.truncated_frames == 1
     assert node.parser.pending_bytes == 0
     node.push_uplink([GROUND.encode(VehicleCommand(0.0, CommandKind.ARM), 1)], emulator.t_s)
-    emulator.step_all()
+    emulator.step_all()  # delivered at 1 ms, between firmware cycles
+    emulator.step_all()  # the firmware cycle at 2 ms takes it
     assert node.sim.firmware.armed
 
 

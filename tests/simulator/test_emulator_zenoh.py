@@ -34,6 +34,7 @@ from link.messages import (
     ImuSample,
     MocapPose,
     ThrustMoment,
+    TimeSync,
     TruthState,
     VehicleCommand,
     VehicleMode,
@@ -315,15 +316,31 @@ def test_lockstep_time_stands_still_without_a_ground_station_or_its_acks():
         stop(proc)
 
 
-def test_same_seed_same_downlink_bytes_with_or_without_lookahead_other_seed_differs():
-    """The lab radio (20 ms minimum latency) lets the emulator run two 10 ms ticks ahead."""
-    script = hover_script(1.02 * VEHICLE.weight_n)
+def hover_and_timesync_script(thrust_n: float, every: int) -> Script:
+    """hover_script, plus a TIMESYNC request every `every` ticks (its reply enters the downlink)."""
+    hover = hover_script(thrust_n)
+
+    def script(tick: int, t_s: float) -> list:
+        messages = hover(tick, t_s)
+        if tick % every == 0:
+            messages.append(TimeSync(remote_ns=0, origin_ns=round(t_s * NS_PER_S) + 1))
+        return messages
+
+    return script
+
+
+@pytest.mark.parametrize(("radio", "period_s"), [("lab", 0.01), ("crazyradio", 0.002)])
+def test_same_seed_same_downlink_bytes_with_or_without_lookahead_other_seed_differs(radio, period_s):
+    """The lab radio (20 ms minimum latency) lets the emulator run two 10 ms ticks ahead; crazyradio's
+    0.84 ms, rounded up to the firmware's next 2 ms cycle, one whole 500 Hz tick."""
+    script = hover_and_timesync_script(1.02 * VEHICLE.weight_n, every=round(0.1 / period_s))
     runs = {}
     for name, args in {"a": ("--seed", "7"), "b": ("--seed", "7"), "no_lookahead": ("--seed", "7", "--no-lookahead"),
                        "other_seed": ("--seed", "8")}.items():
-        gs, code, _ = flight(free_endpoint(), script, 1.5, "--radio", "lab", *args)
+        gs, code, _ = flight(free_endpoint(), script, 1.5, "--radio", radio, *args, period_s=period_s)
         assert code == 0
         assert len(gs.raw_downlink) > 500
+        assert len(gs.messages(TimeSync)) >= 10  # replies to the requests are part of the compared bytes
         runs[name] = gs.downlink_hash()
     assert runs["a"] == runs["b"] == runs["no_lookahead"]
     assert runs["other_seed"] != runs["a"]

@@ -105,6 +105,7 @@ def test_motors_stay_off_until_armed_and_stop_on_disarm():
     sim.run(0.1)
     assert sim.dynamics.rotor_speeds_radps == (0.0,) * 4 and not sim.firmware.armed
     _send(sim, VehicleCommand(sim.t_s, CommandKind.ARM))
+    sim.run(TICK_S)  # the next firmware cycle takes it
     assert sim.firmware.armed and sim.firmware.mode == VehicleMode.IDLE
     _hover(sim)
     sim.run(0.1)
@@ -120,6 +121,7 @@ def test_land_descends_slowly_to_the_floor_then_disarms():
     _hover(sim)
     sim.step()
     _send(sim, VehicleCommand(sim.t_s, CommandKind.LAND))
+    sim.run(TICK_S)  # the next firmware cycle takes it
     lowest_vz = 0.0
     while sim.firmware.armed and sim.t_s < 10.0:
         _hover(sim)  # setpoints are ignored while landing

@@ -75,15 +75,36 @@ def test_channels_rates_and_release_order():
     assert np.diff(imu_times) == pytest.approx(1.0 / CF.imu.rate_hz)
 
 
-def test_timesync_reply_carries_the_vehicle_clock_and_echoes_the_origin():
+def test_timesync_reply_carries_the_vehicle_clock_of_the_firmware_cycle_and_echoes_the_origin():
+    """Delivered at 0.251 s (between two 2 ms firmware cycles), answered by the cycle at 0.252 s."""
     sim = SimVehicle(CF, np.random.default_rng(1))
-    sim.run(0.25)
+    sim.run(0.251)
     sim.handle_uplink(TimeSync(remote_ns=0, origin_ns=123_456), sim.t_s)
     sim.handle_uplink(TimeSync(remote_ns=5, origin_ns=9), sim.t_s)  # a reply sent to us: not answered
+    sim.step()  # the step at 0.251 s: no firmware cycle, nothing answered yet
+    assert not [o for o in sim.pop_outputs() if isinstance(o.message, TimeSync)]
+    sim.step()  # the cycle at 0.252 s
     replies = [o for o in sim.pop_outputs() if isinstance(o.message, TimeSync)]
     assert len(replies) == 1
-    assert replies[0].message == TimeSync(remote_ns=250_000_000, origin_ns=123_456)
-    assert replies[0].channel == "downlink" and replies[0].release_time_s == pytest.approx(0.25)
+    assert replies[0].message == TimeSync(remote_ns=252_000_000, origin_ns=123_456)
+    assert replies[0].channel == "downlink" and replies[0].release_time_s == pytest.approx(0.252)
+
+
+def test_an_uplink_acts_at_the_first_firmware_cycle_at_or_after_its_delivery():
+    """first_effect_s is a true bound: a setpoint delivered at 0.3005 s changes the rotors from the
+    0.302 s cycle on (500 Hz cycles on a 1 kHz physics grid), never before."""
+    sim = SimVehicle(CF, np.random.default_rng(1), initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True)
+    hover = CF.hover_rotor_speed_radps
+    assert sim.first_effect_s(0.3005) == pytest.approx(0.302)
+    assert sim.first_effect_s(0.302) == pytest.approx(0.302)  # on a cycle: handled in it
+    sim.run(0.301)
+    sim.handle_uplink(ThrustMoment(0.0, 1.1 * CF.weight_n, (0.0, 0.0, 0.0)), 0.3005)
+    sim.step()  # 0.301 -> 0.302: not a cycle
+    assert sim.dynamics.rotor_speeds_radps == pytest.approx([hover] * 4)
+    sim.step()  # the cycle at 0.302
+    assert sim.dynamics.rotor_speeds_radps == pytest.approx([hover * math.sqrt(1.1)] * 4)
+    off_grid = SimVehicle(CF, np.random.default_rng(1), physics_rate_hz=300.0)
+    assert off_grid.first_effect_s(0.3005) == 0.3005  # cycles between steps: only the delivery bounds it
 
 
 def test_an_uplink_delivered_later_waits_for_its_time():
