@@ -28,12 +28,17 @@ class TickTimer:
         self.work_s: list[float] = []
         self.misses = 0
         self._t0 = 0.0
+        self.first_start: float | None = None  # perf_counter of the first tick's start
+        self.last_stop: float | None = None
 
     def start(self) -> None:
         self._t0 = time.perf_counter()
+        if self.first_start is None:
+            self.first_start = self._t0
 
     def stop(self) -> float:
-        work = time.perf_counter() - self._t0
+        self.last_stop = time.perf_counter()
+        work = self.last_stop - self._t0
         self.work_s.append(work)
         if work > self.period_s:
             self.misses += 1
@@ -41,9 +46,11 @@ class TickTimer:
 
     def summary(self) -> dict:
         w = np.array(self.work_s or [0.0]) * 1e3
+        loop_s = None if self.first_start is None else self.last_stop - self.first_start
         return {"ticks": len(self.work_s), "tick_ms_p50": float(np.percentile(w, 50)),
                 "tick_ms_p99": float(np.percentile(w, 99)), "deadline_misses": self.misses,
-                "deadline_miss_rate": self.misses / max(1, len(self.work_s))}
+                "deadline_miss_rate": self.misses / max(1, len(self.work_s)),
+                "loop_wall_s": loop_s}  # from the first tick's start to the last tick's end
 
 
 class RealtimeClock:

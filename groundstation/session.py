@@ -195,7 +195,12 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
         "wall_time_s": wall_s,
         "log_dir": str(log_dir),
     }
-    summary["timing"] = loop.clock.timer.summary()
+    timing = loop.clock.timer.summary()
+    # Simulated seconds per wall second while flying (first tick to last); wall_time_s above also holds
+    # the start: opening the link and, with `fly`, waiting for the emulator child to boot.
+    loop_s = timing["loop_wall_s"]
+    timing["real_time_factor"] = summary["sim_time_s"] / loop_s if loop_s else None
+    summary["timing"] = timing
     if opts.clock == "realtime":
         summary["timing"]["achieved_rate_hz"] = loop.clock.achieved_rate_hz()
     summary.update(opts.extra_summary)

@@ -32,9 +32,10 @@ lockstep clock stands still (and says so every WAIT_LOG_PERIOD_S).
 Lockstep with conservative lookahead. After publishing tick k at t_k the emulator does not know when
 tick k+1 will be (the acks say), but it knows that nothing the ground station sends in answer to tick
 k is pushed into an uplink radio before t_k, hence delivered to a vehicle before t_k + L, with
-L = min over vehicles of RadioChannel.min_latency_s (a true lower bound). So while it waits for the
-acks it may already run every physics step that STARTS before t_k + L (the step starting at s
-applies the uplink frames due by s). Frames those steps produce are kept in each vehicle's outbox,
+L = RadioChannel.min_latency_s (a true lower bound), and that a vehicle's firmware takes delivered
+messages only at its next 500 Hz cycle (SimVehicle.first_effect_s). So while it waits for the acks it
+may already run every physics step that STARTS before horizon_s = min over vehicles of the first
+firmware cycle at or after t_k + L (with crazyradio's 0.84 ms and 2 ms cycles: one whole 500 Hz tick). Frames those steps produce are kept in each vehicle's outbox,
 stamped with the step count at which a non-lookahead emulator would have published them, and are
 published with the first tick whose time reaches that stamp; tick k's view is therefore unchanged.
 Uplink frames of tick k are pushed into the radio at t_k, as without lookahead. The result is
