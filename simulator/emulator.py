@@ -35,7 +35,8 @@ k is pushed into an uplink radio before t_k, hence delivered to a vehicle before
 L = RadioChannel.min_latency_s (a true lower bound), and that a vehicle's firmware takes delivered
 messages only at its next 500 Hz cycle (SimVehicle.first_effect_s). So while it waits for the acks it
 may already run every physics step that STARTS before horizon_s = min over vehicles of the first
-firmware cycle at or after t_k + L (with crazyradio's 0.84 ms and 2 ms cycles: one whole 500 Hz tick). Frames those steps produce are kept in each vehicle's outbox,
+firmware cycle at or after t_k + L (with crazyradio's 0.84 ms and 2 ms cycles: one whole 500 Hz tick).
+Frames those steps produce are kept in each vehicle's outbox,
 stamped with the step count at which a non-lookahead emulator would have published them, and are
 published with the first tick whose time reaches that stamp; tick k's view is therefore unchanged.
 Uplink frames of tick k are pushed into the radio at t_k, as without lookahead. The result is
