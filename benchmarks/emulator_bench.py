@@ -17,7 +17,8 @@ Targets (issue "The emulator"): >= 20x real time in-process for one vehicle; ove
 
 Run: python benchmarks/emulator_bench.py [--seconds 4] [--repeats 3] [--radio lab]
 (--radio lab: 20 ms minimum latency, so lookahead can hide all of a tick's physics behind the responder's
-turn; crazyradio's 0.84 ms hides one 1 ms step per tick. Lookahead only pays when a core is free.)
+turn; crazyradio's 0.84 ms, rounded up to the vehicle firmware's next 2 ms cycle (when a delivered
+command first acts), hides two 1 ms steps per tick. Lookahead only pays when a core is free.)
 The responder child is this file: python benchmarks/emulator_bench.py --responder ENDPOINT PERIOD_S SECONDS
 """
 
@@ -156,7 +157,9 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
 
 def report_zenoh(radio: str, seconds: float, repeats: int, seed: int) -> None:
     lookahead_s = load_radio_profile(radio).min_latency_s
-    print(f"over zenoh, lockstep, radio '{radio}' (uplink minimum latency = lookahead {lookahead_s * 1e3:.3f} ms), "
+    horizon_s = Emulator(make_config(radio, 1, seed)).lookahead_horizon_s()  # from tick 0 at t = 0
+    print(f"over zenoh, lockstep, radio '{radio}' (uplink minimum latency {lookahead_s * 1e3:.3f} ms: lookahead to "
+          f"the firmware cycle {horizon_s * 1e3:.3f} ms after a tick), "
           f"{seconds:g} s simulated per run, best of {repeats}; load average {os.getloadavg()[0]:.1f} "
           f"on {os.cpu_count()} CPUs:")
     for rate_hz in (500.0, 100.0):
