@@ -356,7 +356,7 @@ class VehicleNode:
     def _deliver_uplink(self, frames: list[bytes], t: float) -> None:
         feed, handle = self.parser.feed, self.sim.handle_uplink
         for frame in frames:
-            for decoded in feed(frame, True):  # each frame is one whole zenoh sample (a datagram)
+            for decoded in feed(frame, True):  # each uplink sample is whole frames (a datagram)
                 handle(decoded.message, t)
 
     def _push_radio_status(self, t: float) -> None:
