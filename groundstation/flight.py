@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import signal
-import time
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -21,7 +20,7 @@ import numpy as np
 from estimator.eskf import POSITION, ErrorStateKF
 from groundstation.compensation import LatencyCompensator
 from groundstation.controller import ControllerState, SE3Controller
-from groundstation.flightlog import FLUSH_PERIOD_S, FlightLog
+from groundstation.flightlog import FlightLog
 from groundstation.mission import Mission, MissionParams, MissionStep, Phase, VehicleView
 from link.messages import (
     AttitudeTarget,
@@ -104,7 +103,6 @@ class FlightLoop:
         self.timesync = TimeSyncTracker(clock=clock.now, stats=link.radio.stats)
         self.interrupts = 0
         self._uplink_latency_s: float | None = None
-        self._last_flush = time.monotonic()
 
     # --- inputs ----------------------------------------------------------------------------------
     def absorb(self, now_s: float) -> None:
@@ -238,19 +236,9 @@ class FlightLoop:
             self.absorb(now)
             self.clock.release(now + self.period_s)
             self.write_row(now, done, None)
-            self.flush_logs_if_due()
             self.clock.done()
             if now >= give_up or (now >= observe_until and self._status_covers_all_sent()):
                 return
-
-    def flush_logs_if_due(self) -> None:
-        """Flush states.csv and the tlog when FLUSH_PERIOD_S of wall time has passed since the last time
-        (closing them at the end flushes the rest)."""
-        now = time.monotonic()
-        if now - self._last_flush >= FLUSH_PERIOD_S:
-            self._last_flush = now
-            self.link.flush_logs()  # the tlog first: a kill between the two leaves no row without its frames
-            self.log.flush()
 
     def _status_covers_all_sent(self) -> bool:
         if self.health.last_status_s is None or self.link.last_sent_s is None:
@@ -283,7 +271,6 @@ class FlightLoop:
         self.clock.release(now + self.period_s)
         self.write_row(now, step, out)
         self.check_health(now)
-        self.flush_logs_if_due()
         self.clock.done()
 
     def write_row(self, now: float, step, out) -> None:

@@ -1,9 +1,8 @@
 """Flight logs: states.csv (one row per control tick), summary.json, plan.json.
 
 Takes in: per-tick values (time, phase, truth, estimate, reference, command, link health) as floats.
-Gives out: files in the log folder, written as they go; the owner calls flush() at least every
-FLUSH_PERIOD_S of wall time (the flight loop does), so a killed ground station leaves readable logs
-missing at most the rows of the last FLUSH_PERIOD_S. Format: README "Flight logs".
+Gives out: files in the log folder, written as they go and flushed every row, so a killed ground station
+leaves readable logs (at most the row being written is lost). Format: README "Flight logs".
 """
 
 from __future__ import annotations
@@ -34,11 +33,6 @@ def default_log_dir(root: str | Path = "flights") -> Path:
     return Path(root) / stamp
 
 
-# How often the flight loop flushes its logs (wall time): one write per tick costs more than the row
-# itself at 500 rows/s (measured ~19 us per line-buffered row), and 50 ms is what a kill may lose.
-FLUSH_PERIOD_S = 0.05
-STATES_BUFFER_BYTES = 1 << 22  # 4 MiB: ~6000 rows, far more than a flush period's
-
 # Numbers are written with 12 significant digits (a picometre at metres, well below any sensor's
 # resolution): one %-format per block costs a quarter of repr() per float, which matters at 500 rows/s.
 NUMBER = "%.12g"
@@ -66,17 +60,15 @@ class FlightLog:
     def __init__(self, folder: str | Path):
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
-        # a buffer far larger than FLUSH_PERIOD_S of rows: only flush() writes, so a killed writer's
-        # rows never run ahead of the tlog the flight loop flushes first
-        self._states = open(self.folder / "states.csv", "w", buffering=STATES_BUFFER_BYTES, newline="")
+        self._states = open(self.folder / "states.csv", "w", buffering=1, newline="")  # line buffered
         self._states.write(",".join(COLUMNS) + "\n")
-        self.flush()
+        self._flush()
 
     @property
     def tlog_path(self) -> Path:
         return self.folder / "link.tlog"
 
-    def flush(self) -> None:
+    def _flush(self) -> None:
         """Hand the rows written so far to the OS (and to the disk with CFSTACK_FSYNC set)."""
         self._states.flush()
         os.fsync(self._states.fileno()) if os.environ.get("CFSTACK_FSYNC") else None

@@ -36,7 +36,7 @@ class VehicleLink:
         opts = zenoh_options or {}
         self.keys = keys
         self.clock = clock
-        self.tlog = TlogWriter(tlog_path, batched=True) if tlog_path else None  # see flush_logs()
+        self.tlog = TlogWriter(tlog_path) if tlog_path else None
         codec = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits, signing=signing)
         self.radio = Endpoint(open_transport(connection, tx=keys.uplink, rx=keys.downlink, **opts), codec,
                               FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog,
@@ -73,11 +73,6 @@ class VehicleLink:
         self.inbox.mocap.extend(self.mocap.receive(waits[1]))
         if self.truth is not None:
             self.inbox.truth.extend(self.truth.receive(waits[2]))
-
-    def flush_logs(self) -> None:
-        """Hand the frames logged since the last call to the OS (the flight loop calls it periodically)."""
-        if self.tlog is not None:
-            self.tlog.flush()
 
     def take(self) -> Inbox:
         inbox, self.inbox = self.inbox, Inbox()

@@ -8,9 +8,7 @@ Gives out: a file of records `timestamp (8 bytes, big-endian unsigned, microseco
 
 Each record goes to the operating system in one os.write call as soon as it is written (no Python-level
 buffering), so a process that is killed loses at most the record being written; surviving a power loss
-would need `fsync=True` (an fsync per frame: slow). With `batched=True` the owner calls flush() at
-points of its choosing (the flight loop: every few tens of milliseconds, one os.write instead of one
-per frame); a killed process then loses at most the records since the last flush.
+would need `fsync=True` (an fsync per frame: slow).
 """
 
 from __future__ import annotations
@@ -38,12 +36,10 @@ class TlogWriter:
     """Appends time-stamped frames to a .tlog file; a context manager. `clock()` returns seconds."""
 
     def __init__(self, path: str | Path, clock: Callable[[], float] = time.time, *, fsync: bool = False,
-                 append: bool = False, batched: bool = False):
+                 append: bool = False):
         self.path = Path(path)
         self.clock = clock
         self.fsync = fsync
-        self.batched = batched
-        self._pending = bytearray()  # batched records not yet handed to the OS
         self.frames_written = 0
         self.bytes_written = 0
         self._fd: int | None = None
@@ -60,25 +56,13 @@ class TlogWriter:
             raise ValueError(f"{self.path}: tlog is closed")
         stamp_s = self.clock() if time_s is None else time_s
         record = _TIMESTAMP.pack(max(0, int(round(stamp_s * 1e6)))) + bytes(frame)
-        self.frames_written += 1
-        self.bytes_written += len(record)
-        if self.batched:
-            self._pending += record
-        else:
-            self._write(record)
-
-    def flush(self) -> None:
-        """Hand the batched records to the OS (one os.write); nothing to do unless batched."""
-        if self._pending and self._fd is not None:
-            records, self._pending = bytes(self._pending), bytearray()
-            self._write(records)
-
-    def _write(self, data: bytes) -> None:
-        written = os.write(self._fd, data)
-        while written < len(data):  # a regular file takes it all at once; be correct anyway
-            written += os.write(self._fd, data[written:])
+        written = os.write(self._fd, record)
+        while written < len(record):  # a regular file takes it all at once; be correct anyway
+            written += os.write(self._fd, record[written:])
         if self.fsync:
             os.fsync(self._fd)
+        self.frames_written += 1
+        self.bytes_written += len(record)
 
     @property
     def closed(self) -> bool:
@@ -86,7 +70,6 @@ class TlogWriter:
 
     def close(self) -> None:
         if self._fd is not None:
-            self.flush()
             fd, self._fd = self._fd, None
             os.close(fd)
 

@@ -129,18 +129,3 @@ def test_killed_writer_leaves_a_log_readable_to_the_last_whole_frame(tmp_path):
     assert size - len(ours) * record_len < record_len  # at most the record being written is cut
     theirs = pymavlink_read(path)
     assert len(theirs) == len(ours) and theirs[-1][1].xacc == pytest.approx(len(ours) - 1, rel=1e-6)
-
-
-def test_a_batched_writer_hands_records_to_the_os_at_flush_and_close(tmp_path):
-    path = tmp_path / "batched.tlog"
-    codec = Codec(system_id=1)
-    frames = [codec.encode(TimeSync(remote_ns=0, origin_ns=i + 1)) for i in range(3)]
-    writer = TlogWriter(path, batched=True)
-    writer.write(frames[0], 1.0)
-    writer.write(frames[1], 2.0)
-    assert path.stat().st_size == 0  # held until flush
-    writer.flush()
-    assert [t for t, _ in read_tlog(path)] == [1.0, 2.0]
-    writer.write(frames[2], 3.0)
-    writer.close()  # close flushes the rest
-    assert [(t, d.message.origin_ns) for t, d in read_tlog(path)] == [(1.0, 1), (2.0, 2), (3.0, 3)]
