@@ -237,9 +237,15 @@ def human_summary(summary: dict) -> str:
         f"link: uplink {link['uplink_delivered']}/{link['uplink_sent']} delivered, downlink "
         f"{link['downlink_delivered']}/{link['downlink_sent']}, rtt p50 {fmt(link['rtt_ms_p50'], ' ms', digits=2)} "
         f"p99 {fmt(link['rtt_ms_p99'], ' ms', digits=2)}",
-        f"{summary['sim_time_s']:.2f} s simulated in {summary['wall_time_s']:.2f} s wall; logs in {summary['log_dir']}",
+        f"{summary['sim_time_s']:.2f} s simulated in {summary['wall_time_s']:.2f} s wall"
+        f"{_loop_speed(summary.get('timing', {}))}; logs in {summary['log_dir']}",
     ]
     return "\n".join(lines)
+
+
+def _loop_speed(timing: dict) -> str:
+    rtf = timing.get("real_time_factor")
+    return "" if rtf is None else f" (flight loop {rtf:.1f}x real time)"
 
 
 def dump_json(summary: dict) -> str:
