@@ -33,6 +33,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections import deque
 from pathlib import Path
 
 from link.clock import NS_PER_S, ClockAck, unpack_tick
@@ -213,7 +214,9 @@ def report_tick_split(run: dict) -> None:
 
 def responder(endpoint: str, period_s: float, seconds: float) -> None:
     """Join vehicle 1's lockstep; per tick: wait for the announced frames (blocking on the key still
-    short), send ARM (first tick) and a hover ThrustMoment, ack with wake-up = tick + period."""
+    short), send ARM (first tick) and a hover ThrustMoment, ack with wake-up = tick + period. Its acks
+    carry the period as a standing order (ClockAck.period_ns), as the ground station's do, so the
+    emulator may publish a tick before the last one's ack when its lookahead covers a whole tick."""
     opts = {"connect": [endpoint], "listen": []}
     keys = VehicleKeys(PREFIX, 1)
     vehicle = load_vehicle("crazyflie")
@@ -229,16 +232,18 @@ def responder(endpoint: str, period_s: float, seconds: float) -> None:
     period_ns = round(period_s * NS_PER_S)
     waits = {"tick_wait_s": 0.0, "frames_wait_s": 0.0, "work_s": 0.0}
     perf = time.perf_counter
-    clock.send(ClockAck(-1, 0, 0).pack())
+    clock.send(ClockAck(-1, 0, 0, period_ns=period_ns).pack())
     ticks, last, cpu0, switches0 = 0, -1, 0.0, 0
+    queued: deque = deque()  # tick records received ahead of the one being answered
     while True:
         t0 = perf()
-        tick = None
-        while tick is None:
-            for data in clock.receive(1.0):
+        while not queued:
+            for data in clock.receive(0.0 if queued else 1.0):
                 candidate = unpack_tick(data)
-                if candidate is not None and candidate.tick > last:
-                    tick = candidate
+                newest = queued[-1].tick if queued else last
+                if candidate is not None and candidate.tick > newest:
+                    queued.append(candidate)
+        tick = queued.popleft()
         t1 = perf()
         want = (tick.downlink_published, tick.mocap_published, tick.truth_published)
         while True:
@@ -258,7 +263,7 @@ def responder(endpoint: str, period_s: float, seconds: float) -> None:
         last = tick.tick
         done = tick.time_s >= seconds - 1e-9
         clock.send(ClockAck(tick.tick, uplink.stats.frames_sent, 0 if done else tick.time_ns + period_ns,
-                            leaving=done).pack())
+                            leaving=done, period_ns=period_ns).pack())
         t3 = perf()
         if ticks > 0:
             waits["tick_wait_s"] += t1 - t0

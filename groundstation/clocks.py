@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 
 import numpy as np
 
@@ -108,8 +109,13 @@ class LockstepClock:
     kind = "lockstep"
 
     def __init__(self, period_s: float, link, clock_transport, wait_timeout_s: float = 30.0, peer_failure=None):
-        """`peer_failure()`: None while the emulator we started is alive, else why it stopped."""
+        """`peer_failure()`: None while the emulator we started is alive, else why it stopped.
+        Every ack carries the period as a standing order (ClockAck.period_ns): the loop always asks for
+        the next tick one period after the current one, which lets the emulator publish a tick before
+        the previous one's ack arrives whenever its lookahead allows."""
         self.period_s = period_s
+        self.period_ns = round(period_s * NS_PER_S)
+        self._ticks: deque = deque()  # tick records received ahead of the one being computed
         self.link = link
         self.transport = clock_transport
         self.wait_timeout_s = wait_timeout_s
@@ -120,7 +126,7 @@ class LockstepClock:
         self.ticks = 0
 
     def start(self) -> None:
-        self.transport.send(ClockAck(-1, self.link.uplink_sent, 0).pack())
+        self.transport.send(ClockAck(-1, self.link.uplink_sent, 0, period_ns=self.period_ns).pack())
 
     def now(self) -> float:
         return self.t_s
@@ -129,16 +135,17 @@ class LockstepClock:
         tick = self._next_tick()
         self.t_s = tick.time_s  # frames of this tick are received at its time (their ages depend on it)
         target = (tick.downlink_published, tick.mocap_published, tick.truth_published)
-        self.link.pump(0.0)
+        self.link.fetch(0.0)
         deadline = time.monotonic() + self.wait_timeout_s
         while True:
             short = [have < want for have, want in zip(self.link.raw_counts(), target, strict=True)]
             if not any(short):
                 break
-            self.link.pump(0.001, wait_on=short.index(True))  # wait on the stream that is behind
+            self.link.fetch(0.001, wait_on=short.index(True))  # wait on the stream that is behind
             if time.monotonic() > deadline:
                 raise UserError(f"lockstep: frames of tick {tick.tick} never arrived "
                                 f"(have {self.link.raw_counts()}, expected {target})")
+        self.link.deliver(target)  # this tick's samples only: a later tick's may be here already
         self.tick = tick.tick
         self.t_s = tick.time_s
         self.ticks += 1
@@ -148,10 +155,9 @@ class LockstepClock:
     def _next_tick(self):
         waited = 0.0
         while True:
-            for data in self.transport.receive(0.5):
-                tick = unpack_tick(data)
-                if tick is not None and tick.tick > self.tick:
-                    return tick
+            self._take_ticks(0.0 if self._ticks else 0.5)
+            if self._ticks:
+                return self._ticks.popleft()
             waited += 0.5
             failure = self.peer_failure()
             if failure:
@@ -164,10 +170,19 @@ class LockstepClock:
             if waited % 5.0 < 0.5:
                 log.info("lockstep: waiting for the emulator's clock on %s", self.transport.rx)
 
+    def _take_ticks(self, timeout_s: float) -> None:
+        """Queue the tick records that arrived (in order; repeats and stale ones dropped)."""
+        last = self._ticks[-1].tick if self._ticks else self.tick
+        for data in self.transport.receive(timeout_s):
+            tick = unpack_tick(data)
+            if tick is not None and tick.tick > last:
+                self._ticks.append(tick)
+                last = tick.tick
+
     def release(self, next_wakeup_s: float) -> None:
         """Ack the tick: every uplink frame of it is sent. The emulator may step on from here."""
         wake_ns = max(round(next_wakeup_s * NS_PER_S), round(self.t_s * NS_PER_S) + 1)
-        self.transport.send(ClockAck(self.tick, self.link.uplink_sent, wake_ns).pack())
+        self.transport.send(ClockAck(self.tick, self.link.uplink_sent, wake_ns, period_ns=self.period_ns).pack())
 
     def done(self) -> None:
         self.timer.stop()

@@ -2,8 +2,9 @@
 
 Takes in: a connection string and zenoh options, the vehicle id and key prefix, actuator limits and
 signing, a clock for receive times, and an optional .tlog path.
-Gives out: `send(message)` on the uplink; `poll()` returning decoded downlink, mocap and (simulation-only)
-truth messages; raw frame counts per key (for the lockstep clock) and link statistics.
+Gives out: `send(message)` on the uplink; decoded downlink, mocap and (simulation-only) truth messages
+in an inbox (`pump()`: everything that arrived; or, for the lockstep clock, `fetch()` samples and
+`deliver(counts)` exactly a tick's worth of them); sample counts per key and link statistics.
 Mocap comes from the ground network and truth from the simulator: neither passes the radio.
 """
 
@@ -50,6 +51,9 @@ class VehicleLink:
                                   FrameParser(ground), clock=clock)
         self.inbox = Inbox()
         self.last_sent_s: float | None = None
+        self._streams = [self.radio, self.mocap, self.truth]  # raw_counts() order
+        self._held: list[list[bytes]] = [[], [], []]  # samples taken from the transports, not yet delivered
+        self._taken = [0, 0, 0]
 
     def send(self, message) -> None:
         self.radio.send(message, target_system=self.keys.vehicle_id)
@@ -60,19 +64,35 @@ class VehicleLink:
         return self.radio.transport.stats.frames_sent
 
     def raw_counts(self) -> tuple[int, int, int]:
-        """Frames (zenoh samples) received so far on the downlink, mocap and truth keys."""
-        truth = self.truth.transport.stats.chunks_received if self.truth else 0
-        return (self.radio.transport.stats.chunks_received, self.mocap.transport.stats.chunks_received, truth)
+        """Samples taken so far from the downlink, mocap and truth keys (delivered or held)."""
+        return tuple(self._taken)
+
+    def fetch(self, timeout_s: float = 0.0, wait_on: int = 0) -> None:
+        """Take whatever samples have arrived, undecoded, waiting at most timeout_s on one stream
+        (wait_on: 0 downlink, 1 mocap, 2 truth - the order of raw_counts())."""
+        for i, endpoint in enumerate(self._streams):
+            if endpoint is not None:
+                samples = endpoint.transport.receive(timeout_s if i == wait_on else 0.0)
+                self._held[i].extend(samples)
+                self._taken[i] += len(samples)
+
+    def deliver(self, counts: tuple[int, int, int] | None = None) -> None:
+        """Decode held samples into the inbox (stamped now on the clock): all of them, or per stream
+        only up to `counts` samples taken in all (a lockstep tick's; later ones stay held)."""
+        boxes = (self.inbox.downlink, self.inbox.mocap, self.inbox.truth)
+        for i, endpoint in enumerate(self._streams):
+            held = self._held[i]
+            if endpoint is None or not held:
+                continue
+            take = len(held) if counts is None else max(0, counts[i] - (self._taken[i] - len(held)))
+            if take:
+                boxes[i].extend(endpoint.deliver(held[:take]))
+                del held[:take]
 
     def pump(self, timeout_s: float = 0.0, wait_on: int = 0) -> None:
-        """Move whatever has arrived into the inbox, waiting at most timeout_s on one stream
-        (wait_on: 0 downlink, 1 mocap, 2 truth - the order of raw_counts())."""
-        waits = [0.0, 0.0, 0.0]
-        waits[wait_on] = timeout_s
-        self.inbox.downlink.extend(self.radio.receive(waits[0]))
-        self.inbox.mocap.extend(self.mocap.receive(waits[1]))
-        if self.truth is not None:
-            self.inbox.truth.extend(self.truth.receive(waits[2]))
+        """Move whatever has arrived into the inbox, waiting at most timeout_s on one stream."""
+        self.fetch(timeout_s, wait_on)
+        self.deliver()
 
     def take(self) -> Inbox:
         inbox, self.inbox = self.inbox, Inbox()

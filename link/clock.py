@@ -17,9 +17,9 @@ import struct
 from dataclasses import dataclass
 
 _TICK = struct.Struct("<4sqqqqq")
-_ACK = struct.Struct("<4sqqqB")
+_ACK = struct.Struct("<4sqqqqB")
 _TICK_MAGIC = b"CLK1"
-_ACK_MAGIC = b"ACK1"
+_ACK_MAGIC = b"ACK2"  # ACK1 had no period_ns
 NS_PER_S = 1_000_000_000
 
 
@@ -42,15 +42,22 @@ class ClockTick:
 
 @dataclass(frozen=True)
 class ClockAck:
-    """A ground station's reply to tick `tick` (-1 = join). `leaving` = it takes no further part."""
+    """A ground station's reply to tick `tick` (-1 = join). `leaving` = it takes no further part.
+
+    `period_ns` > 0 is a standing order: after every tick at time t this ground station wants the next
+    at t + period_ns (next_wakeup_ns then says the same for the next tick). It lets the emulator decide a
+    tick's time before the previous tick's acks are in, and so publish it as early as the lookahead
+    allows (simulator.emulator). 0: no promise, each ack's next_wakeup_ns decides."""
 
     tick: int
     uplink_sent: int
     next_wakeup_ns: int
     leaving: bool = False
+    period_ns: int = 0
 
     def pack(self) -> bytes:
-        return _ACK.pack(_ACK_MAGIC, self.tick, self.uplink_sent, self.next_wakeup_ns, int(self.leaving))
+        return _ACK.pack(_ACK_MAGIC, self.tick, self.uplink_sent, self.next_wakeup_ns, self.period_ns,
+                         int(self.leaving))
 
 
 def unpack_tick(data: bytes) -> ClockTick | None:
@@ -63,5 +70,5 @@ def unpack_tick(data: bytes) -> ClockTick | None:
 def unpack_ack(data: bytes) -> ClockAck | None:
     if len(data) != _ACK.size or data[:4] != _ACK_MAGIC:
         return None
-    _, tick, sent, wake, leaving = _ACK.unpack(data)
-    return ClockAck(tick, sent, wake, bool(leaving))
+    _, tick, sent, wake, period, leaving = _ACK.unpack(data)
+    return ClockAck(tick, sent, wake, bool(leaving), max(0, period))

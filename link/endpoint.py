@@ -73,7 +73,12 @@ class Endpoint:
 
     def receive(self, timeout_s: float = 0.0) -> list[Received]:
         """Everything that arrived, waiting at most `timeout_s` for the first chunk."""
-        chunks = self.transport.receive(timeout_s)
+        return self.deliver(self.transport.receive(timeout_s))
+
+    def deliver(self, chunks: list[bytes]) -> list[Received]:
+        """Decode, count and log chunks already taken from the transport (receive() is
+        deliver(transport.receive())): a caller may hold chunks back and deliver them later, at the
+        receive time its clock then gives."""
         if not chunks:
             return []
         received_s = self.clock()

@@ -232,6 +232,8 @@ class VehicleNode:
         self.outbox: deque[tuple[int, int, bytes]] = deque()
         self.published = [0, 0, 0]  # samples published per channel (DOWNLINK, MOCAP, TRUTH)
         self.uplink_in = 0  # the ground station's uplink frames taken from the transport (GroundFrameGate)
+        self.held_uplink: deque[tuple[bytes, int]] = deque()  # lockstep: (sample, its frames of ours), not yet offered
+        self.uplink_released = 0  # the ground station's frames offered to the radio from held_uplink
         self.uplink_foreign = 0  # uplink samples with none of its frames (another publisher on the key)
         self.radio_cuts = config.radio_cuts
         self.mocap_cuts = config.mocap_cuts
@@ -271,14 +273,54 @@ class VehicleNode:
         return len(frames)
 
     def push_uplink(self, frames: list[bytes], push_time_s: float) -> None:
-        """Offer uplink samples to the radio at push_time_s (unless a radio cut covers it), counting
-        the ground station's frames among them for the lockstep."""
+        """Offer uplink samples to the radio at push_time_s now (realtime, in-process), counting the
+        ground station's frames among them."""
         count = self.gate.count
         for frame in frames:
             ours = count(frame)
             self.uplink_in += ours
             if not ours:
                 self.uplink_foreign += 1
+        self._offer_uplink(frames, push_time_s)
+
+    def take_uplink(self, timeout_s: float = 0.0) -> int:
+        """Lockstep: take the uplink samples that have arrived, count the ground station's frames among
+        them, and hold them until its acks account for them (release_uplink)."""
+        samples = self.link.receive(timeout_s)
+        count, held = self.gate.count, self.held_uplink
+        for sample in samples:
+            ours = count(sample)
+            self.uplink_in += ours
+            if not ours:
+                self.uplink_foreign += 1
+            held.append((sample, ours))
+        return len(samples)
+
+    def release_uplink(self, sent: int, push_time_s: float) -> None:
+        """Offer held samples, in arrival order, to the radio at push_time_s while the ground station's
+        frames among them stay within `sent` (its ack's count); a foreign sample goes with them."""
+        held = self.held_uplink
+        while held and self.uplink_released + held[0][1] <= sent:
+            sample, ours = held.popleft()
+            self.uplink_released += ours
+            self._offer_uplink((sample,), push_time_s)
+
+    def release_foreign(self, push_time_s: float) -> None:
+        """Offer the held samples at the head that hold none of the ground station's frames."""
+        held = self.held_uplink
+        while held and not held[0][1]:
+            self._offer_uplink((held.popleft()[0],), push_time_s)
+
+    def release_all(self, push_time_s: float) -> None:
+        """Offer every held sample (no ground station accounts for this vehicle's uplink now)."""
+        held = self.held_uplink
+        while held:
+            sample, ours = held.popleft()
+            self.uplink_released += ours
+            self._offer_uplink((sample,), push_time_s)
+
+    def _offer_uplink(self, frames, push_time_s: float) -> None:
+        """Into the uplink radio at push_time_s, unless a radio cut covers that time."""
         if self.radio_cuts and covered(self.radio_cuts, push_time_s):
             self.cut["uplink"] += len(frames)
             return
@@ -428,7 +470,6 @@ class Emulator:
         self.nodes = [VehicleNode(config, i + 1, seeds[i], starts[i]) for i in range(config.vehicles)]
         self.dt_s = 1.0 / config.physics_rate_hz
         self.lookahead_s = min(n.uplink_radio.min_latency_s for n in self.nodes) if config.lookahead else 0.0
-        self.horizon_s = 0.0  # lockstep: steps starting before this cannot depend on the last tick's answer
         self.steps = 0  # physics steps done (lockstep: may run ahead of the last tick, see the docstring)
         self.tick = -1  # the last lockstep tick published
         self.tick_steps = 0  # the step count (simulation time) of that tick
@@ -501,76 +542,118 @@ class Emulator:
 
     # --- lockstep -------------------------------------------------------------------------------
     def run_lockstep(self) -> None:
+        """Poll; publish the next tick once its time is decided and the physics has reached it; else
+        step if the horizon allows; else block briefly on what is missing (a join, an ack, frames)."""
         lock = _Lockstep()
         self._last_progress = time.monotonic()
-        while not self.stopped and not self._duration_reached(self.tick_steps):
-            if self.await_lockstep(lock):
-                self.publish_next_tick(lock)
-
-    def await_lockstep(self, lock: _Lockstep) -> bool:
-        """Until every participant has acked the last tick and its uplink frames are in: poll, run
-        ahead where that is safe, otherwise block briefly on what is missing. False if stopped."""
         prof = self.config.profile
         clock = time.perf_counter
-        while not self.stopped:
+        while not self.stopped and not self._duration_reached(self.tick_steps):
             t0 = clock() if prof else 0.0
             self.poll(lock)
             if prof:
                 self.timing_s["poll"] += clock() - t0
-            if lock.participants and lock.ready(self.nodes, self.tick):
-                return True
-            if self.can_look_ahead(lock):
+            n = self.next_tick_steps_decided(lock)
+            if n is not None and self.steps >= n:
+                self.publish_tick(lock, n)
+                continue
+            if self.can_step(lock, n):
+                if any(p.acked < self.tick for p in lock.participants.values()):
+                    self.lookahead_steps += 1  # run before every ground station has answered the last tick
                 self.step_all()
-                self.lookahead_steps += 1
                 continue
             t0 = clock() if prof else 0.0
             self.wait_briefly(lock)
             if prof:
                 self.timing_s["wait"] += clock() - t0
             self.log_if_waiting(lock)
-        return False
 
-    def can_look_ahead(self, lock: _Lockstep) -> bool:
-        """Whether the next physics step can run before the acks of the last tick are in: it starts
-        before any answer to that tick can act on a vehicle (horizon_s, set when the tick is published)."""
-        if self.tick < 0 or not lock.participants:
+    def next_tick_steps_decided(self, lock: _Lockstep) -> int | None:
+        """The step count of the next tick if its time is decided, else None. It is decided when every
+        participant has said when it wants it: by acking the last tick (its next wake-up), or by a
+        standing period (ClockAck.period_ns: the tick after t comes at t + period), which lets the
+        next tick be decided before the last one's acks are in."""
+        if not lock.participants:
+            return None
+        last_ns = round(self.tick_steps * self.dt_s * NS_PER_S)
+        wanted = []
+        for p in lock.participants.values():
+            if p.period_ns > 0 and not p.fresh:  # its standing order (its acks' wake-ups say the same)
+                wanted.append(last_ns + p.period_ns)
+            elif p.acked >= self.tick:
+                wanted.append(p.wake_ns)
+            else:
+                return None
+        return self.next_tick_steps(min(wanted))
+
+    def can_step(self, lock: _Lockstep, next_tick_steps: int | None) -> bool:
+        """Whether the next physics step may run: it starts before the horizon (below), and never past
+        a decided next tick or the duration."""
+        if not lock.participants or self.tick < 0:
             return False
-        return self.steps * self.dt_s < self.horizon_s - LOOKAHEAD_MARGIN_S
+        if next_tick_steps is not None and self.steps >= next_tick_steps:
+            return False
+        if self.duration_steps is not None and self.steps >= self.duration_steps:
+            return False
+        return self.steps * self.dt_s < self.horizon_s(lock, next_tick_steps) - LOOKAHEAD_MARGIN_S
+
+    def horizon_s(self, lock: _Lockstep, next_tick_steps: int | None = None) -> float:
+        """The earliest time anything a ground station may still send can act on its vehicle.
+
+        A participant's frames are all in (and offered to its radio) up to some tick a (`complete`);
+        whatever it sends later belongs to a tick at or after tick a + 1, is offered at that tick's time
+        t, so is delivered no earlier than t + L (L = the uplink radio's minimum latency) and taken by
+        the firmware at its first cycle at or after that (SimVehicle.first_effect_s). Without
+        lookahead, t itself. t: tick a + 1's time when published or decided, else the last tick's
+        (a lower bound: a tick is never before the one before it)."""
+        horizon = math.inf
+        for vid, p in lock.participants.items():
+            following = p.complete + 1
+            if following <= self.tick:
+                t = lock.tick_steps[following] * self.dt_s
+            elif following == self.tick + 1 and next_tick_steps is not None:
+                t = next_tick_steps * self.dt_s
+            else:
+                t = self.tick_time_s
+            if self.config.lookahead:
+                node = self.nodes[vid - 1]
+                t = node.sim.first_effect_s(t + node.uplink_radio.min_latency_s)
+            horizon = min(horizon, t)
+        return horizon
 
     def lookahead_horizon_s(self) -> float:
-        """The earliest time an answer to the tick at tick_time_s can act on any vehicle: delivered no
-        earlier than t_k + L (L = the uplink radio's minimum latency), then taken by the vehicle's
-        firmware at its first cycle at or after that (SimVehicle.first_effect_s). t_k without lookahead."""
+        """The horizon right after a tick at tick_time_s, before any answer to it: the first firmware
+        cycle at or after tick_time_s + L over the vehicles (tick_time_s without lookahead)."""
         t_k = self.tick_time_s
         if not self.config.lookahead:
             return t_k
         return min(node.sim.first_effect_s(t_k + node.uplink_radio.min_latency_s) for node in self.nodes)
 
     def poll(self, lock: _Lockstep) -> None:
-        """Take every pending ack and uplink frame without blocking."""
-        tick_time_s = self.tick_time_s
+        """Take every pending ack and uplink sample without blocking, and offer to the radios the
+        uplink samples the acks account for."""
         for node in self.nodes:
             for data in node.clock.receive(0.0):
-                lock.handle(node.vehicle_id, data, self.tick, tick_time_s)
-            node.receive_uplink(tick_time_s)
+                lock.handle(node.vehicle_id, data, self.tick, self.tick_steps, self.dt_s)
+            node.take_uplink()
+            if node.held_uplink and node.vehicle_id not in lock.participants:
+                node.release_all(self.tick_time_s)
+        lock.release(self.nodes, self.dt_s)
 
     def wait_briefly(self, lock: _Lockstep) -> None:
         """Block a little on whatever the lockstep is waiting for: a join, an ack, or uplink frames."""
-        tick_time_s = self.tick_time_s
         if not lock.participants:
             node = self.nodes[0]
             for data in node.clock.receive(JOIN_POLL_S):
-                lock.handle(node.vehicle_id, data, self.tick, tick_time_s)
+                lock.handle(node.vehicle_id, data, self.tick, self.tick_steps, self.dt_s)
             return
-        for vid in lock.participants:
-            node = self.nodes[vid - 1]
-            if vid not in lock.acked:
-                for data in node.clock.receive(LAGGARD_POLL_S):
-                    lock.handle(vid, data, self.tick, tick_time_s)
-                return
-            if node.uplink_in < lock.uplink_expected.get(vid, 0):
-                node.receive_uplink(tick_time_s, LAGGARD_POLL_S)
-                return
+        vid, p = min(lock.participants.items(), key=lambda item: item[1].complete)
+        node = self.nodes[vid - 1]
+        if p.pending:  # acked, but not all of that tick's frames are in
+            node.take_uplink(LAGGARD_POLL_S)
+            return
+        for data in node.clock.receive(LAGGARD_POLL_S):
+            lock.handle(vid, data, self.tick, self.tick_steps, self.dt_s)
 
     def log_if_waiting(self, lock: _Lockstep) -> None:
         now = time.monotonic()
@@ -580,7 +663,8 @@ class Emulator:
         if not lock.participants:
             log.info("lockstep: waiting for a ground station to join (simulation time %.3f s)", self.tick_time_s)
         else:
-            missing = sorted(set(lock.participants) - lock.acked) or sorted(lock.participants)
+            missing = sorted(vid for vid, p in lock.participants.items() if p.acked < self.tick) \
+                or sorted(lock.participants)
             log.info("lockstep: waiting for the ground station(s) of vehicle(s) %s to finish tick %d "
                      "(simulation time %.3f s)", ", ".join(map(str, missing)), self.tick, self.tick_time_s)
 
@@ -595,22 +679,18 @@ class Emulator:
             n = min(n, max(self.duration_steps, self.tick_steps))
         return n
 
-    def publish_next_tick(self, lock: _Lockstep) -> None:
-        """Step to the next tick time, publish the frames due by then in one burst, then the tick
-        record. (One burst lets zenoh batch the samples into few writes, and the ground station finds
-        the frames already there when the record wakes it: measured fewer context switches per tick
-        than publishing frames step by step or the record first.)"""
-        n = self.next_tick_steps(min(lock.participants.values()))
-        while self.steps < n and not self.stopped:
-            self.step_all()
-        n = min(n, self.steps)
+    def publish_tick(self, lock: _Lockstep, n: int) -> None:
+        """Publish the frames due by step n in one burst, then the record of the next tick at n. (One
+        burst lets zenoh batch the samples into few writes, and the ground station finds the frames
+        already there when the record wakes it: measured fewer context switches per tick than
+        publishing frames step by step or the record first.)"""
         self.tick += 1
         self.tick_steps = n
-        self.horizon_s = self.lookahead_horizon_s()
+        lock.tick_steps[self.tick] = n
+        lock.forget_before(min(p.complete for p in lock.participants.values()))
         if self.first_tick_wall is None:
             self.first_tick_wall = time.monotonic()
         time_ns = round(n * self.dt_s * NS_PER_S)
-        lock.acked.clear()
         self.flush(n)
         prof = self.config.profile
         t0 = time.perf_counter() if prof else 0.0
@@ -742,40 +822,72 @@ def default_starts(world: World | None, count: int, airborne: bool) -> list[tupl
     return [tuple((base + np.array([0.5 * i, 0.0, 0.0])).tolist()) for i in range(count)]
 
 
+@dataclass
+class _Participant:
+    """A ground station in the lockstep (one per vehicle id)."""
+
+    acked: int  # the last tick it acknowledged (on joining: the last tick published then)
+    wake_ns: int  # when it wants the tick after `acked`
+    period_ns: int  # its standing period (ClockAck.period_ns; 0: none)
+    complete: int  # the last tick whose uplink frames are all in and offered to the radio
+    fresh: bool = True  # joined, no tick acknowledged yet: its standing period does not apply yet
+    pending: deque = field(default_factory=deque)  # (tick, uplink_sent) of acks whose frames are not all in
+
+
 class _Lockstep:
     """Who takes part in the lockstep, what they acknowledged, and when they want to be woken."""
 
     def __init__(self):
-        self.participants: dict[int, int] = {}  # vehicle id -> next wakeup, ns
-        self.uplink_expected: dict[int, int] = {}
-        self.acked: set[int] = set()
+        self.participants: dict[int, _Participant] = {}
+        self.tick_steps: dict[int, int] = {}  # step count of each published tick still needed
 
-    def handle(self, vehicle_id: int, data: bytes, tick: int, tick_time_s: float) -> None:
-        """One ack from the ground station of vehicle_id; tick = the last tick published, at tick_time_s."""
+    def handle(self, vehicle_id: int, data: bytes, tick: int, tick_steps: int, dt_s: float) -> None:
+        """One ack from the ground station of vehicle_id; tick = the last tick published, at step
+        tick_steps (of dt_s each)."""
         ack = unpack_ack(data)
         if ack is None:
             log.warning("lockstep: ignored a malformed clock ack for vehicle %d", vehicle_id)
             return
+        p = self.participants.get(vehicle_id)
         if ack.leaving:
             if self.participants.pop(vehicle_id, None) is not None:
-                log.info("lockstep: the ground station of vehicle %d left at t=%.3f s", vehicle_id, tick_time_s)
-            self.acked.discard(vehicle_id)
+                log.info("lockstep: the ground station of vehicle %d left at t=%.3f s", vehicle_id,
+                         tick_steps * dt_s)
             return
         if ack.tick == -1:
-            if vehicle_id not in self.participants:
-                log.info("lockstep: a ground station joined for vehicle %d at t=%.3f s", vehicle_id, tick_time_s)
-            self.participants[vehicle_id] = round(tick_time_s * NS_PER_S)
-        elif ack.tick == tick and vehicle_id in self.participants:
-            self.participants[vehicle_id] = ack.next_wakeup_ns
-        else:
+            if p is None:
+                log.info("lockstep: a ground station joined for vehicle %d at t=%.3f s", vehicle_id,
+                         tick_steps * dt_s)
+                # it has seen nothing: it wants a tick at once (at the last tick's time)
+                wake_ns = round(tick_steps * dt_s * NS_PER_S)
+                p = self.participants[vehicle_id] = _Participant(tick, wake_ns, ack.period_ns, tick - 1)
+                self.tick_steps.setdefault(tick, tick_steps)
+                p.pending.append((tick, ack.uplink_sent))
             return
-        self.uplink_expected[vehicle_id] = ack.uplink_sent
-        self.acked.add(vehicle_id)
+        if p is None or ack.tick != p.acked + 1 or ack.tick > tick:
+            return  # not a participant, or not the answer to the tick it is on (a repeat, say)
+        p.acked = ack.tick
+        p.wake_ns = ack.next_wakeup_ns
+        p.period_ns = ack.period_ns
+        p.fresh = False
+        p.pending.append((ack.tick, ack.uplink_sent))
 
-    def ready(self, nodes: list[VehicleNode], tick: int) -> bool:
-        for vid in self.participants:
-            if tick >= 0 and vid not in self.acked:
-                return False
-            if nodes[vid - 1].uplink_in < self.uplink_expected.get(vid, 0):
-                return False
-        return True
+    def release(self, nodes: list[VehicleNode], dt_s: float) -> None:
+        """Offer each participant's held uplink samples to its radio at the time of the tick they
+        answer, as far as its acks account for them (ClockAck.uplink_sent counts its frames)."""
+        for vid, p in self.participants.items():
+            node = nodes[vid - 1]
+            while p.pending:
+                tick, sent = p.pending[0]
+                t_s = self.tick_steps[tick] * dt_s
+                node.release_uplink(sent, t_s)
+                if node.uplink_released < sent:
+                    break
+                p.pending.popleft()
+                p.complete = tick
+            if p.complete in self.tick_steps:  # another publisher's samples need no ack: offer them on
+                node.release_foreign(self.tick_steps[p.complete] * dt_s)
+
+    def forget_before(self, tick: int) -> None:
+        for old in [k for k in self.tick_steps if k < tick]:
+            del self.tick_steps[old]

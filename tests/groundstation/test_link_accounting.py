@@ -163,15 +163,24 @@ def test_timesync_and_frame_ages_equal_the_configured_latency(tmp_path):
 
 
 @pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
-def test_same_seed_gives_byte_identical_states_and_another_seed_differs(tmp_path):
-    def states_hash(seed: int, name: str) -> str:
-        log = tmp_path / name
-        run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / "maze_2024_1.json"), "--mode",
-                              "attitude", "--seed", str(seed), "--json", "--log", str(log)],
-                             capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
-        assert json.loads(run.stdout)["result"] == "reached_goal", run.stderr
-        return hashlib.sha256((log / "states.csv").read_bytes()).hexdigest()
+def _states_hash(tmp_path, seed: int, name: str, mode: str, *extra: str) -> str:
+    log = tmp_path / name
+    run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / "maze_2024_1.json"), "--mode",
+                          mode, "--seed", str(seed), "--json", "--log", str(log), *extra],
+                         capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert json.loads(run.stdout)["result"] == "reached_goal", run.stderr
+    return hashlib.sha256((log / "states.csv").read_bytes()).hexdigest()
 
-    first = states_hash(11, "a")
-    assert states_hash(11, "b") == first
-    assert states_hash(12, "c") != first
+
+def test_same_seed_gives_byte_identical_states_and_another_seed_differs(tmp_path):
+    first = _states_hash(tmp_path, 11, "a", "attitude")
+    assert _states_hash(tmp_path, 11, "b", "attitude") == first
+    assert _states_hash(tmp_path, 12, "c", "attitude") != first
+
+
+def test_pipelined_ticks_give_the_same_flight_as_strict_lockstep(tmp_path):
+    """In moments mode at 500 Hz the emulator publishes a tick before the last one's ack arrives (the
+    firmware-cycle lookahead covers a whole tick); with --no-lookahead it waits for every ack. The
+    flight log must not tell them apart."""
+    pipelined = _states_hash(tmp_path, 5, "pipelined", "moments")
+    assert _states_hash(tmp_path, 5, "strict", "moments", "--emulator-arg=--no-lookahead") == pipelined
