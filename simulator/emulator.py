@@ -39,8 +39,17 @@ firmware cycle at or after t_k + L (with crazyradio's 0.84 ms and 2 ms cycles: o
 Frames those steps produce are kept in each vehicle's outbox,
 stamped with the step count at which a non-lookahead emulator would have published them, and are
 published with the first tick whose time reaches that stamp; tick k's view is therefore unchanged.
-Uplink frames of tick k are pushed into the radio at t_k, as without lookahead. The result is
-byte-identical with or without lookahead (tests/simulator/test_emulator*.py check it).
+Uplink samples are held until an ack accounts for them (ClockAck.uplink_sent counts the ground
+station's frames) and then pushed into the radio at the time of the tick they answer, as without
+lookahead; another publisher's samples go with them. The result is byte-identical with or without
+lookahead (tests/simulator/test_emulator*.py and tests/groundstation/test_link_accounting.py check it).
+
+Pipelined ticks. When every ground station's acks carry a standing period (ClockAck.period_ns: the
+tick after t comes at t + period), the next tick's time is decided before the last tick's acks are
+in, and the emulator publishes it as soon as the physics reaches it within the horizon. With
+crazyradio and 500 Hz ticks the horizon covers a whole tick, so tick k+1 goes out while the ground
+station still computes tick k and the zenoh round trip leaves the serial path (the ground station
+takes exactly each tick's announced samples, so it sees the same inputs either way).
 A tick's frames go out in one burst, packed per key into as few samples as possible (pack_samples),
 then the tick record, which counts samples.
 """
