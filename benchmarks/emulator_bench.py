@@ -238,7 +238,7 @@ def responder(endpoint: str, period_s: float, seconds: float) -> None:
     while True:
         t0 = perf()
         while not queued:
-            for data in clock.receive(0.0 if queued else 1.0):
+            for data in clock.receive(1.0):
                 candidate = unpack_tick(data)
                 newest = queued[-1].tick if queued else last
                 if candidate is not None and candidate.tick > newest:

@@ -508,29 +508,20 @@ class Codec:
             payload = encoder(msg, limits, target_system)
         except (struct.error, ValueError, OverflowError, TypeError) as err:
             raise ValueError(f"{kind.__name__} cannot be encoded as {wire_name}: {err}") from None
-        # The steps of frame(), inline: this runs per frame (500 Hz-1 kHz) and on the link's round trip,
-        # where each extra call costs more than its hot-loop time (cold caches after every wake-up).
+        return self._wrap(msgid, crc_extra, payload, source)
+
+    def frame(self, msgid: int, crc_extra: bytes, payload: bytes, source_system: int | None = None) -> bytes:
+        """Wrap a packed payload: zero-truncate it, add header and CRC, sign if signing is on."""
+        source = self.system_id if source_system is None else source_system
+        return self._wrap(msgid, crc_extra, bytes(payload), source)
+
+    def _wrap(self, msgid: int, crc_extra: bytes, payload: bytes, source: int) -> bytes:
         payload = payload.rstrip(b"\x00") or b"\x00"  # MAVLink 2 keeps at least the first byte
         sequence = self._sequence
         seq = sequence.get(source, 0)
         sequence[source] = (seq + 1) & 0xFF
         signing = self.signing
         # the CRC covers the header without its magic byte, the payload and CRC_EXTRA
-        checked = _HEADER_AFTER_MAGIC.pack(len(payload), 0 if signing is None else IFLAG_SIGNED, 0, seq, source,
-                                           self.component_id, msgid & 0xFFFF, msgid >> 16) + payload
-        body = _MAGIC + checked + _CRC.pack(_crc16(checked + crc_extra))
-        if signing is not None:
-            body += signing.signature_block(body)
-        return body
-
-    def frame(self, msgid: int, crc_extra: bytes, payload: bytes, source_system: int | None = None) -> bytes:
-        """Wrap a packed payload: zero-truncate it, add header and CRC, sign if signing is on.
-        (encode() does the same steps inline.)"""
-        source = self.system_id if source_system is None else source_system
-        payload = bytes(payload).rstrip(b"\x00") or b"\x00"  # MAVLink 2 keeps at least the first byte
-        seq = self._sequence.get(source, 0)
-        self._sequence[source] = (seq + 1) & 0xFF
-        signing = self.signing
         checked = _HEADER_AFTER_MAGIC.pack(len(payload), 0 if signing is None else IFLAG_SIGNED, 0, seq, source,
                                            self.component_id, msgid & 0xFFFF, msgid >> 16) + payload
         body = _MAGIC + checked + _CRC.pack(_crc16(checked + crc_extra))

@@ -284,46 +284,32 @@ class VehicleNode:
     def push_uplink(self, frames: list[bytes], push_time_s: float) -> None:
         """Offer uplink samples to the radio at push_time_s now (realtime, in-process), counting the
         ground station's frames among them."""
-        count = self.gate.count
         for frame in frames:
-            ours = count(frame)
-            self.uplink_in += ours
-            if not ours:
-                self.uplink_foreign += 1
+            self._count_arrival(frame)
         self._offer_uplink(frames, push_time_s)
 
     def take_uplink(self, timeout_s: float = 0.0) -> int:
         """Lockstep: take the uplink samples that have arrived, count the ground station's frames among
         them, and hold them until its acks account for them (release_uplink)."""
         samples = self.link.receive(timeout_s)
-        count, held = self.gate.count, self.held_uplink
         for sample in samples:
-            ours = count(sample)
-            self.uplink_in += ours
-            if not ours:
-                self.uplink_foreign += 1
-            held.append((sample, ours))
+            self.held_uplink.append((sample, self._count_arrival(sample)))
         return len(samples)
 
-    def release_uplink(self, sent: int, push_time_s: float) -> None:
+    def _count_arrival(self, sample: bytes) -> int:
+        """The ground station's frames in an arriving uplink sample (GroundFrameGate), counted."""
+        ours = self.gate.count(sample)
+        self.uplink_in += ours
+        if not ours:
+            self.uplink_foreign += 1
+        return ours
+
+    def release_uplink(self, sent: float, push_time_s: float) -> None:
         """Offer held samples, in arrival order, to the radio at push_time_s while the ground station's
-        frames among them stay within `sent` (its ack's count); a foreign sample goes with them."""
+        frames among them stay within `sent` (its ack's count); a foreign sample goes with them.
+        sent = uplink_released: only the foreign samples at the head; math.inf: every held sample."""
         held = self.held_uplink
         while held and self.uplink_released + held[0][1] <= sent:
-            sample, ours = held.popleft()
-            self.uplink_released += ours
-            self._offer_uplink((sample,), push_time_s)
-
-    def release_foreign(self, push_time_s: float) -> None:
-        """Offer the held samples at the head that hold none of the ground station's frames."""
-        held = self.held_uplink
-        while held and not held[0][1]:
-            self._offer_uplink((held.popleft()[0],), push_time_s)
-
-    def release_all(self, push_time_s: float) -> None:
-        """Offer every held sample (no ground station accounts for this vehicle's uplink now)."""
-        held = self.held_uplink
-        while held:
             sample, ours = held.popleft()
             self.uplink_released += ours
             self._offer_uplink((sample,), push_time_s)
@@ -624,19 +610,19 @@ class Emulator:
                 t = next_tick_steps * self.dt_s
             else:
                 t = self.tick_time_s
-            if self.config.lookahead:
-                node = self.nodes[vid - 1]
-                t = node.sim.first_effect_s(t + node.uplink_radio.min_latency_s)
-            horizon = min(horizon, t)
+            horizon = min(horizon, self.first_effect_s(self.nodes[vid - 1], t))
         return horizon
 
-    def lookahead_horizon_s(self) -> float:
-        """The horizon right after a tick at tick_time_s, before any answer to it: the first firmware
-        cycle at or after tick_time_s + L over the vehicles (tick_time_s without lookahead)."""
-        t_k = self.tick_time_s
+    def first_effect_s(self, node: VehicleNode, offered_s: float) -> float:
+        """The earliest time an uplink frame offered to node's radio at offered_s can act on the
+        vehicle: with lookahead, the first firmware cycle at or after offered_s + L; else offered_s."""
         if not self.config.lookahead:
-            return t_k
-        return min(node.sim.first_effect_s(t_k + node.uplink_radio.min_latency_s) for node in self.nodes)
+            return offered_s
+        return node.sim.first_effect_s(offered_s + node.uplink_radio.min_latency_s)
+
+    def lookahead_horizon_s(self) -> float:
+        """The horizon right after a tick at tick_time_s, before any answer to it (benchmarks, tests)."""
+        return min(self.first_effect_s(node, self.tick_time_s) for node in self.nodes)
 
     def poll(self, lock: _Lockstep) -> None:
         """Take every pending ack and uplink sample without blocking, and offer to the radios the
@@ -646,7 +632,7 @@ class Emulator:
                 lock.handle(node.vehicle_id, data, self.tick, self.tick_steps, self.dt_s)
             node.take_uplink()
             if node.held_uplink and node.vehicle_id not in lock.participants:
-                node.release_all(self.tick_time_s)
+                node.release_uplink(math.inf, self.tick_time_s)  # nobody's acks account for them
         lock.release(self.nodes, self.dt_s)
 
     def wait_briefly(self, lock: _Lockstep) -> None:
@@ -895,7 +881,7 @@ class _Lockstep:
                 p.pending.popleft()
                 p.complete = tick
             if p.complete in self.tick_steps:  # another publisher's samples need no ack: offer them on
-                node.release_foreign(self.tick_steps[p.complete] * dt_s)
+                node.release_uplink(node.uplink_released, self.tick_steps[p.complete] * dt_s)
 
     def forget_before(self, tick: int) -> None:
         for old in [k for k in self.tick_steps if k < tick]:
