@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,15 +21,11 @@ from groundstation.trajectories.basic import (
 from groundstation.trajectories.flat import polyval
 from link.errors import ConfigError, UserError
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from trajectory_checks import FIELDS, assert_samples_are_fresh_arrays, derivatives  # noqa: E402
+
 START = np.array([0.3, -0.2, 0.9])
-FIELDS = ("position_m", "velocity_mps", "acceleration_mps2", "jerk_mps3", "snap_mps4")
-
-
-def derivatives(trajectory, t):
-    out = trajectory.sample(t)
-    return [np.asarray(getattr(out, f)) for f in FIELDS]
-
-
 def assert_derivatives_consistent(trajectory, times, h=1e-4):
     """Each derivative equals the central difference of the one below it (error O(h^2))."""
     for t in times:
@@ -171,18 +169,6 @@ def test_bad_arguments_are_refused():
         Line([0, 0], [1, 0, 0])
     with pytest.raises(UserError, match="speed_mps"):
         Line(START, START + 1, speed_mps=0.0)
-
-
-def assert_samples_are_fresh_arrays(trajectory, times):
-    """Each sample's five vectors are its own: changing them in place changes nothing else."""
-    for t in times:
-        first, again = derivatives(trajectory, t), derivatives(trajectory, t)
-        for k, vector in enumerate(first):
-            assert isinstance(vector, np.ndarray) and vector.shape == (3,) and vector.dtype == float
-            vector += 1000.0 * (k + 1)
-        for k, vector in enumerate(first):
-            np.testing.assert_array_equal(vector, again[k] + 1000.0 * (k + 1), err_msg=f"{FIELDS[k]} at t={t}")
-        np.testing.assert_array_equal(derivatives(trajectory, t), again)
 
 
 def test_samples_are_fresh_arrays_the_caller_may_keep_or_modify():
