@@ -329,8 +329,7 @@ class FlightLoop:
                         _lerp(newer.velocity_enu_mps, older.velocity_enu_mps, f))
             older = newer
         only = history[0]  # a single sample, at exactly t_s
-        return _lerp(only.position_enu_m, only.position_enu_m, 0.0), _lerp(only.velocity_enu_mps,
-                                                                           only.velocity_enu_mps, 0.0)
+        return tuple(map(float, only.position_enu_m)), tuple(map(float, only.velocity_enu_mps))
 
     def check_health(self, now: float) -> None:
         """Warn once when mocap rate, latency or delivery leave sane bounds."""

@@ -53,7 +53,6 @@ class VehicleLink:
         self.last_sent_s: float | None = None
         self._streams = [self.radio, self.mocap, self.truth]  # raw_counts() order
         self._held: list[list[bytes]] = [[], [], []]  # samples taken from the transports, not yet delivered
-        self._taken = [0, 0, 0]
 
     def send(self, message) -> None:
         self.radio.send(message, target_system=self.keys.vehicle_id)
@@ -65,16 +64,18 @@ class VehicleLink:
 
     def raw_counts(self) -> tuple[int, int, int]:
         """Samples taken so far from the downlink, mocap and truth keys (delivered or held)."""
-        return tuple(self._taken)
+        return tuple(self._taken(i) for i in range(3))
+
+    def _taken(self, stream: int) -> int:
+        endpoint = self._streams[stream]
+        return 0 if endpoint is None else endpoint.transport.stats.chunks_received
 
     def fetch(self, timeout_s: float = 0.0, wait_on: int = 0) -> None:
         """Take whatever samples have arrived, undecoded, waiting at most timeout_s on one stream
         (wait_on: 0 downlink, 1 mocap, 2 truth - the order of raw_counts())."""
         for i, endpoint in enumerate(self._streams):
             if endpoint is not None:
-                samples = endpoint.transport.receive(timeout_s if i == wait_on else 0.0)
-                self._held[i].extend(samples)
-                self._taken[i] += len(samples)
+                self._held[i].extend(endpoint.transport.receive(timeout_s if i == wait_on else 0.0))
 
     def deliver(self, counts: tuple[int, int, int] | None = None) -> None:
         """Decode held samples into the inbox (stamped now on the clock): all of them, or per stream
@@ -84,7 +85,7 @@ class VehicleLink:
             held = self._held[i]
             if endpoint is None or not held:
                 continue
-            take = len(held) if counts is None else max(0, counts[i] - (self._taken[i] - len(held)))
+            take = len(held) if counts is None else max(0, counts[i] - (self._taken(i) - len(held)))
             if take:
                 boxes[i].extend(endpoint.deliver(held[:take]))
                 del held[:take]
