@@ -45,9 +45,9 @@ class ClockAck:
     """A ground station's reply to tick `tick` (-1 = join). `leaving` = it takes no further part.
 
     `period_ns` > 0 is a standing order: after every tick at time t this ground station wants the next
-    at t + period_ns (next_wakeup_ns then says the same for the next tick). It lets the emulator decide a
-    tick's time before the previous tick's acks are in, and so publish it as early as the lookahead
-    allows (simulator.emulator). 0: no promise, each ack's next_wakeup_ns decides."""
+    at t + period_ns; its next_wakeup_ns must say the same, and the emulator goes by the period. It lets
+    the emulator decide a tick's time before the previous tick's acks are in, and so publish it as early
+    as the lookahead allows (simulator.emulator). 0: no promise, each ack's next_wakeup_ns decides."""
 
     tick: int
     uplink_sent: int

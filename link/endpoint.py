@@ -56,11 +56,7 @@ class Endpoint:
     def send(self, msg: Message, target_system: int = 0) -> bytes:
         """Encode and send one message; returns the frame (also when the transport refused it)."""
         frame = self.codec.encode(msg, target_system)
-        # send_frame(frame), inline: one call less between the message and the medium
-        ok = self.transport.send(frame)
-        self.stats.record_sent(len(frame), ok)
-        if ok and self.tlog is not None:
-            self.tlog.write(frame)
+        self.send_frame(frame)
         return frame
 
     def send_frame(self, frame: bytes) -> bool:
