@@ -24,8 +24,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse
-import scipy.sparse.csgraph
 
 from groundstation.planning import load_planning_params
 from groundstation.planning.astar import _connections, astar
@@ -33,6 +31,11 @@ from groundstation.planning.occupancy import OccupancyGrid
 from groundstation.trajectories.minsnap import MinSnapSettings, min_snap_through, plan_min_snap
 from link.vehicle import load_vehicle
 from link.world import load_world
+
+# the library alternative (scipy Dijkstra) lives with the tests, which use it as the oracle
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "groundstation"))
+
+from reference_paths import dijkstra_length  # noqa: E402
 
 WORLDS = Path(__file__).resolve().parents[1].parent / "shared" / "worlds"
 LAB_RESOLUTION_M, LAB_MARGIN_M = 0.05, 0.25
@@ -92,36 +95,6 @@ def baseline_astar(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray) -> 
     return best, expanded
 
 
-def scipy_dijkstra(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray) -> float:
-    """The library alternative: build the free-voxel graph as a sparse matrix (numpy, vectorised) and run
-    scipy.sparse.csgraph.dijkstra (C, no heuristic, no early exit) from the start voxel.
-    Returns the length."""
-    shape, free = grid.shape, ~grid.occupied
-    ids = np.full(shape, -1)
-    ids[free] = np.arange(free.sum())
-    rows, cols, costs = [], [], []
-    for d in itertools.product((-1, 0, 1), repeat=3):
-        if not any(d):
-            continue
-        src = tuple(slice(max(0, -k), shape[a] - max(0, k)) for a, k in enumerate(d))
-        dst = tuple(slice(max(0, k), shape[a] - max(0, -k)) for a, k in enumerate(d))
-        both = free[src] & free[dst]
-        rows.append(ids[src][both])
-        cols.append(ids[dst][both])
-        costs.append(np.full(rows[-1].size, np.linalg.norm(np.array(d) * grid.resolution_m)))
-    n = int(free.sum())
-    graph = scipy.sparse.csr_matrix(
-        (np.concatenate(costs), (np.concatenate(rows), np.concatenate(cols))), (n, n)
-    )
-    s_vox, g_vox = grid.metric_to_index(start), grid.metric_to_index(goal)
-    dist = scipy.sparse.csgraph.dijkstra(graph, indices=ids[tuple(s_vox)])
-    return float(
-        np.linalg.norm(start - grid.index_to_metric_center(s_vox))
-        + dist[ids[tuple(g_vox)]]
-        + np.linalg.norm(goal - grid.index_to_metric_center(g_vox))
-    )
-
-
 def cases() -> list[tuple[str, np.ndarray, float]]:
     names = sorted(p.name for p in WORLDS.glob("test_lab_*.json")) + sorted(
         p.name for p in WORLDS.glob("maze_20*.json")
@@ -162,7 +135,7 @@ def bench_astar(repeats: int) -> None:
         base_len, base_expanded = baseline_astar(grid, world.start, world.goal)
         base_time = time.perf_counter() - t0
         t0 = time.perf_counter()
-        scipy_len = scipy_dijkstra(grid, world.start, world.goal)
+        scipy_len = dijkstra_length(grid, world.start, world.goal)
         scipy_time = time.perf_counter() - t0
         best = min(ours_times)
         ratios.append(base_time / best)

@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
-from itertools import product
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.sparse
-import scipy.sparse.csgraph
 
 from groundstation.planning.astar import astar, plan_path
 from groundstation.planning.occupancy import OccupancyGrid
 from groundstation.planning.pruning import prune_waypoints
 from link.errors import UserError
 from link.world import World, load_world
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from reference_paths import dijkstra_length  # noqa: E402
 
 WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
 
@@ -67,35 +69,6 @@ def test_lab_maze_at_fine_resolution_clears_the_margin():
     assert result.found
     assert np.array_equal(result.path_m[0], world.start) and np.array_equal(result.path_m[-1], world.goal)
     assert np.all(world.distance_to_blocks(densify(result.path_m)) >= 0.25 - 1e-9)
-
-
-def dijkstra_length(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray) -> float:
-    """Shortest start -> start voxel centre -> ... -> goal voxel centre -> goal length by scipy Dijkstra."""
-    shape = grid.shape
-    free = ~grid.occupied
-    ids = np.full(shape, -1)
-    ids[free] = np.arange(free.sum())
-    rows, cols, costs = [], [], []
-    for d in product((-1, 0, 1), repeat=3):
-        if not any(d):
-            continue
-        src = tuple(slice(max(0, -k), shape[a] - max(0, k)) for a, k in enumerate(d))
-        dst = tuple(slice(max(0, k), shape[a] - max(0, -k)) for a, k in enumerate(d))
-        both = free[src] & free[dst]
-        rows.append(ids[src][both])
-        cols.append(ids[dst][both])
-        costs.append(np.full(both.sum(), np.linalg.norm(np.array(d) * grid.resolution_m)))
-    n = int(free.sum())
-    graph = scipy.sparse.csr_matrix(
-        (np.concatenate(costs), (np.concatenate(rows), np.concatenate(cols))), (n, n)
-    )
-    s_vox, g_vox = grid.metric_to_index(start), grid.metric_to_index(goal)
-    dist = scipy.sparse.csgraph.dijkstra(graph, indices=ids[tuple(s_vox)])
-    return (
-        np.linalg.norm(start - grid.index_to_metric_center(s_vox))
-        + dist[ids[tuple(g_vox)]]
-        + np.linalg.norm(goal - grid.index_to_metric_center(g_vox))
-    )
 
 
 @pytest.mark.parametrize("seed", range(6))
