@@ -383,11 +383,17 @@ class VehicleNode:
                     outbox.append((step_no, MOCAP, self.ground_codec.encode(message)))
             else:
                 outbox.append((step_no, TRUTH, self.ground_codec.encode(message)))
+        self._finish_step(t, step_no)
+
+    def _finish_step(self, t: float, step_no: int) -> None:
+        """The end of a step at time t: RADIO_STATUS when due, the downlink frames the radio delivers
+        by t into the outbox, a crash reported once."""
         if t >= self.next_radio_status_s:
             self._push_radio_status(t)
+        outbox = self.outbox
         for frame in self.downlink_radio.pop_due(t):
             outbox.append((step_no, DOWNLINK, frame))
-        if sim.crash is not None and not self.crash_reported:
+        if self.sim.crash is not None and not self.crash_reported:
             self._report_crash()
 
     def _deliver_uplink(self, frames: list[bytes], t: float) -> None:
@@ -440,12 +446,7 @@ class VehicleNode:
                 b = clock()
             encode_s += b - a
         t5 = clock()
-        if t >= self.next_radio_status_s:
-            self._push_radio_status(t)
-        for frame in self.downlink_radio.pop_due(t):
-            outbox.append((step_no, DOWNLINK, frame))
-        if sim.crash is not None and not self.crash_reported:
-            self._report_crash()
+        self._finish_step(t, step_no)
         t6 = clock()
         timing["radio"] += (t1 - t0) + radio_s + (t6 - t5)
         timing["decode"] += t2 - t1
