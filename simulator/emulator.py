@@ -553,10 +553,12 @@ class Emulator:
             if n is not None and self.steps >= n:
                 self.publish_tick(lock, n)
                 continue
-            if self.can_step(lock, n):
+            allowed = self.steps_allowed(lock, n)
+            if allowed:
                 if any(p.acked < self.tick for p in lock.participants.values()):
-                    self.lookahead_steps += 1  # run before every ground station has answered the last tick
-                self.step_all()
+                    self.lookahead_steps += allowed  # run before every ground station has answered the last tick
+                for _ in range(allowed):  # no poll in between: what arrives meanwhile can only extend the horizon
+                    self.step_all()
                 continue
             t0 = clock() if prof else 0.0
             self.wait_briefly(lock)
@@ -582,16 +584,18 @@ class Emulator:
                 return None
         return self.next_tick_steps(min(wanted))
 
-    def can_step(self, lock: _Lockstep, next_tick_steps: int | None) -> bool:
-        """Whether the next physics step may run: it starts before the horizon (below), and never past
-        a decided next tick or the duration."""
+    def steps_allowed(self, lock: _Lockstep, next_tick_steps: int | None) -> int:
+        """How many physics steps may run now: those that start before the horizon (below), never past
+        a decided next tick or the duration (0 before the first tick or with nobody taking part)."""
         if not lock.participants or self.tick < 0:
-            return False
-        if next_tick_steps is not None and self.steps >= next_tick_steps:
-            return False
-        if self.duration_steps is not None and self.steps >= self.duration_steps:
-            return False
-        return self.steps * self.dt_s < self.horizon_s(lock, next_tick_steps) - LOOKAHEAD_MARGIN_S
+            return 0
+        end = self.steps
+        limit = self.horizon_s(lock, next_tick_steps) - LOOKAHEAD_MARGIN_S
+        bounds = [n for n in (next_tick_steps, self.duration_steps) if n is not None]
+        last = min(bounds) if bounds else math.inf  # the horizon is finite once anyone takes part
+        while end < last and end * self.dt_s < limit:
+            end += 1
+        return end - self.steps
 
     def horizon_s(self, lock: _Lockstep, next_tick_steps: int | None = None) -> float:
         """The earliest time anything a ground station may still send can act on its vehicle.
