@@ -479,6 +479,8 @@ class Emulator:
         self.duration_steps = (None if config.duration_s is None
                                else max(1, math.ceil(config.duration_s / self.dt_s - 0.5)))
         self._last_progress = time.monotonic()
+        self._next_tick_key: tuple[int, int] | None = None  # next_tick_steps' last question and answer
+        self._next_tick_value = 0
 
     @property
     def t_s(self) -> float:
@@ -559,6 +561,8 @@ class Emulator:
                     self.lookahead_steps += allowed  # run before every ground station has answered the last tick
                 for _ in range(allowed):  # no poll in between: what arrives meanwhile can only extend the horizon
                     self.step_all()
+                if n is not None and self.steps >= n:  # as if the acks meanwhile came just after the tick
+                    self.publish_tick(lock, n)
                 continue
             t0 = clock() if prof else 0.0
             self.wait_briefly(lock)
@@ -589,13 +593,15 @@ class Emulator:
         a decided next tick or the duration (0 before the first tick or with nobody taking part)."""
         if not lock.participants or self.tick < 0:
             return 0
-        end = self.steps
-        limit = self.horizon_s(lock, next_tick_steps) - LOOKAHEAD_MARGIN_S
-        bounds = [n for n in (next_tick_steps, self.duration_steps) if n is not None]
-        last = min(bounds) if bounds else math.inf  # the horizon is finite once anyone takes part
-        while end < last and end * self.dt_s < limit:
+        dt = self.dt_s
+        limit = self.horizon_s(lock, next_tick_steps) - LOOKAHEAD_MARGIN_S  # finite once anyone takes part
+        end = max(self.steps, math.floor(limit / dt) - 1)  # then exactly: the first step not starting before it
+        while end * dt < limit:
             end += 1
-        return end - self.steps
+        for bound in (next_tick_steps, self.duration_steps):
+            if bound is not None and bound < end:
+                end = bound
+        return max(0, end - self.steps)
 
     def horizon_s(self, lock: _Lockstep, next_tick_steps: int | None = None) -> float:
         """The earliest time anything a ground station may still send can act on its vehicle.
@@ -671,12 +677,16 @@ class Emulator:
     def next_tick_steps(self, target_ns: int) -> int:
         """The step count of the next tick: the first step boundary at or after target_ns (never
         before the last tick), capped at the duration."""
+        key = (target_ns, self.tick_steps)
+        if key == self._next_tick_key:  # asked again and again while a tick is being reached
+            return self._next_tick_value
         dt_ns = self.dt_s * NS_PER_S
         n = max(self.tick_steps, math.floor(target_ns / dt_ns) - 1)
         while round(n * self.dt_s * NS_PER_S) < target_ns:
             n += 1
         if self.duration_steps is not None:
             n = min(n, max(self.duration_steps, self.tick_steps))
+        self._next_tick_key, self._next_tick_value = key, n
         return n
 
     def publish_tick(self, lock: _Lockstep, n: int) -> None:
