@@ -284,7 +284,8 @@ def main() -> None:
         responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per zenoh run")
+    parser.add_argument("--seconds", type=float, default=10.0,
+                        help="simulated seconds per zenoh run (longer runs: steadier figures)")
     parser.add_argument("--inprocess-seconds", type=float, default=10.0, help="simulated seconds, in-process")
     parser.add_argument("--vehicles", type=int, default=10, help="fleet size of the second in-process run")
     parser.add_argument("--radio", default="crazyradio", help="radio profile (name or TOML file)")

@@ -157,9 +157,11 @@ def quat_enu_flu_to_ned_frd(q_enu_flu: Quat) -> Quat:
 
     Both factors are 180 deg turns (their squares are -1), so the negated product is exactly its own
     inverse: the same function maps NED/FRD back to ENU/FLU, sign included. (q and -q are the same
-    rotation; the minus keeps w > 0 for near-level attitudes.)"""
-    q = quat_multiply(quat_multiply(Q_NED_FROM_ENU, q_enu_flu), Q_FLU_FROM_FRD)
-    return (-q[0], -q[1], -q[2], -q[3])
+    rotation; the minus keeps w > 0 for near-level attitudes.) Multiplied out, with s = sqrt(1/2):
+    -(a (x) q (x) c) = s (w + z, x + y, x - y, w - z) (tests/link/test_codec.py checks it against
+    the two quaternion products and the rotation matrices)."""
+    w, x, y, z = q_enu_flu
+    return (_SQRT_HALF * (w + z), _SQRT_HALF * (x + y), _SQRT_HALF * (x - y), _SQRT_HALF * (w - z))
 
 
 quat_ned_frd_to_enu_flu = quat_enu_flu_to_ned_frd
@@ -338,17 +340,23 @@ def _enc_battery(m: BatteryStatus, limits, target: int) -> bytes:
     )
 
 
+# ODOMETRY's wire order is time, the 13 state floats, then what truth frames never change (both
+# covariances unknown, frames, reset counter, estimator type, quality): packed once, appended per frame.
+_PACK_ODOMETRY_STATE = struct.Struct("<Q13f").pack
+_ODOMETRY_TRUTH_TAIL = _PACK_ODOMETRY(
+    0, *(0.0,) * 13, *_NAN_COVARIANCE, *_NAN_COVARIANCE,
+    mav.MAV_FRAME_LOCAL_NED, mav.MAV_FRAME_LOCAL_NED, 0, mav.MAV_ESTIMATOR_TYPE_UNKNOWN, ODOMETRY_QUALITY_TRUTH,
+)[struct.calcsize("<Q13f"):]
+
+
 def _enc_truth(m: TruthState, limits, target: int) -> bytes:
     p = m.position_enu_m
     v = m.velocity_enu_mps
     w = m.rate_flu_radps
     q = quat_enu_flu_to_ned_frd(m.attitude_wxyz)
-    return _PACK_ODOMETRY(
+    return _PACK_ODOMETRY_STATE(
         _usec(m.time_s), p[1], p[0], -p[2], *q, v[1], v[0], -v[2], w[0], -w[1], -w[2],
-        *_NAN_COVARIANCE, *_NAN_COVARIANCE,
-        mav.MAV_FRAME_LOCAL_NED, mav.MAV_FRAME_LOCAL_NED, 0, mav.MAV_ESTIMATOR_TYPE_UNKNOWN,
-        ODOMETRY_QUALITY_TRUTH,
-    )
+    ) + _ODOMETRY_TRUTH_TAIL
 
 
 _ENCODER_WIRES: dict[type, tuple[_Wire, Callable]] = {

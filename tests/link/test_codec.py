@@ -13,6 +13,9 @@ from pymavlink.dialects.v20 import common as mav
 from scipy.spatial.transform import Rotation
 
 from link.codec import (
+    ODOMETRY_QUALITY_TRUTH,
+    Q_FLU_FROM_FRD,
+    Q_NED_FROM_ENU,
     ActuatorLimits,
     Codec,
     Decoded,
@@ -38,6 +41,7 @@ from link.messages import (
     VehicleCommand,
     VehicleMode,
 )
+from link.rotation import quat_multiply
 from link.signing import Signing
 from link.vehicle import GRAVITY_MPS2, load_vehicle
 
@@ -111,6 +115,13 @@ def test_quaternion_conversion_is_the_matrix_product(name):
     expected = M_NED_FROM_ENU @ r_enu_flu.as_matrix() @ M_FLU_FROM_FRD
     np.testing.assert_allclose(rot(q_ned).as_matrix(), expected, atol=1e-12)
     np.testing.assert_allclose(quat_ned_frd_to_enu_flu(q_ned), wxyz(r_enu_flu), atol=1e-12)  # sign too
+
+
+@pytest.mark.parametrize("name", sorted(ROTATIONS))
+def test_quaternion_conversion_is_the_two_quaternion_products(name):
+    q = wxyz(ROTATIONS[name])
+    product = quat_multiply(quat_multiply(Q_NED_FROM_ENU, q), Q_FLU_FROM_FRD)
+    np.testing.assert_allclose(quat_enu_flu_to_ned_frd(q), [-v for v in product], atol=1e-15)
 
 
 @pytest.mark.parametrize("name", sorted(ROTATIONS))
@@ -280,6 +291,11 @@ def test_truth_state_is_odometry_in_local_ned():
     assert (msg.vx, msg.vy, msg.vz) == (-0.25, 0.5, -1.0)
     assert (msg.rollspeed, msg.pitchspeed, msg.yawspeed) == pytest.approx((0.1, -0.2, -0.3))
     assert msg.time_usec == 4_000_000
+    # the fields every truth frame shares (packed once in the codec), as pymavlink reads them
+    assert math.isnan(msg.pose_covariance[0]) and math.isnan(msg.velocity_covariance[0])
+    assert list(msg.pose_covariance[1:]) == [0.0] * 20 and list(msg.velocity_covariance[1:]) == [0.0] * 20
+    assert (msg.reset_counter, msg.estimator_type) == (0, mav.MAV_ESTIMATOR_TYPE_UNKNOWN)
+    assert msg.quality == ODOMETRY_QUALITY_TRUTH
 
 
 # -- round trips -----------------------------------------------------------------------------------
