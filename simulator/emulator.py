@@ -541,7 +541,10 @@ class Emulator:
     # --- lockstep -------------------------------------------------------------------------------
     def run_lockstep(self) -> None:
         """Poll; publish the next tick once its time is decided and the physics has reached it; else
-        step if the horizon allows; else block briefly on what is missing (a join, an ack, frames)."""
+        run, in one batch with no poll between its steps, every step the horizon allows (an ack that
+        arrives meanwhile can only extend the horizon, and the results never depend on when it is
+        seen), publishing the tick the batch reaches; else block briefly on what is missing (a join,
+        an ack, frames)."""
         lock = _Lockstep()
         self._last_progress = time.monotonic()
         prof = self.config.profile

@@ -302,3 +302,36 @@ def test_realtime_runs_at_the_wall_clocks_pace_and_publishes_as_it_goes():
     truth_rate_hz = emulator.nodes[0].sim.params.truth_rate_hz
     assert len(frames) == pytest.approx(duration_s * truth_rate_hz, abs=2)
     assert emulator.nodes[0].downlink_radio.ledger == []
+
+
+@pytest.mark.parametrize("rate_hz", [1000.0, 300.0])
+def test_a_batch_runs_exactly_the_steps_that_start_before_the_horizon_and_the_bounds(rate_hz, monkeypatch):
+    """steps_allowed (one batch, no polls between its steps) against the one-step rule it replaces: the
+    next step may run while it starts before horizon - margin, the next tick and the duration."""
+    from simulator.emulator import LOOKAHEAD_MARGIN_S, _Lockstep, _Participant
+
+    emulator = Emulator(config(physics_rate_hz=rate_hz, duration_s=1.0))
+    lock = _Lockstep()
+    lock.participants[1] = _Participant(acked=0, wake_ns=0, period_ns=0, complete=0)
+    emulator.tick = 0
+    dt = emulator.dt_s
+
+    def one_by_one(start: int, horizon_s: float, next_tick: int | None) -> int:
+        s = start
+        while (s * dt < horizon_s - LOOKAHEAD_MARGIN_S and (next_tick is None or s < next_tick)
+               and s < emulator.duration_steps):
+            s += 1
+        return s - start
+
+    cases = 0
+    for start in (0, 1, 7, 299, 995):
+        for horizon_s in (start * dt, start * dt + 1e-12, (start + 1) * dt, (start + 2.5) * dt, 0.0137, 5.0,
+                          (start + 2) * dt + LOOKAHEAD_MARGIN_S, (start + 3) * dt + LOOKAHEAD_MARGIN_S):
+            for next_tick in (None, start, start + 1, start + 4, 2000):
+                emulator.steps = start
+                monkeypatch.setattr(emulator, "horizon_s", lambda lock, n, h=horizon_s: h)
+                assert emulator.steps_allowed(lock, next_tick) == one_by_one(start, horizon_s, next_tick), \
+                    (start, horizon_s, next_tick)
+                cases += 1
+    assert cases == 200
+    assert emulator.steps_allowed(_Lockstep(), None) == 0  # nobody taking part
