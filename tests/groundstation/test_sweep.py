@@ -198,6 +198,10 @@ def test_a_crash_or_timeout_is_a_failed_cell_not_an_abort():
     assert "boom" in crash.reason
     killed = sweep.result_from_fly(CELL, -9, "", "", 3.0, Path("x"), timed_out=True)
     assert (killed.success, killed.result) == (False, "timeout")
+    # stopped at its timeout, fly landed and printed its summary in time: still a timeout, metrics kept
+    landed = json.dumps({"result": "aborted", "reached_goal": False, "collided": False, "flight_time_s": 0.4})
+    stopped = sweep.result_from_fly(CELL, 1, landed, "", 3.0, Path("x"), timed_out=True)
+    assert (stopped.success, stopped.result, stopped.flight_time_s) == (False, "timeout", 0.4)
     garbage = sweep.result_from_fly(CELL, 0, "not json", "", 3.0, Path("x"))
     assert not garbage.success
 
