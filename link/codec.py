@@ -626,18 +626,16 @@ class FrameParser:
     def feed(self, data: bytes | bytearray | memoryview, final: bool = False) -> list[Decoded]:
         """Decode every complete frame in the bytes so far. `final=True`: `data` ended a datagram, so
         an incomplete frame at its end will never complete (dropped and counted in truncated_frames)."""
-        try:
-            return self._feed(data, final, True)
-        except Exception:  # noqa: BLE001 - the parser must never raise; count and start clean
-            self.counters.decode_errors += 1
-            self.reset()
-            return []
+        return self._feed_safely(data, final, True)
 
     def feed_fields(self, data: bytes | bytearray | memoryview, final: bool = False) -> list[tuple]:
         """feed() without building Decoded records: one tuple of Decoded's fields, in Decoded's order,
         per frame (what Endpoint.receive uses: it turns each frame into a Received at once)."""
+        return self._feed_safely(data, final, False)
+
+    def _feed_safely(self, data, final: bool, records: bool) -> list:
         try:
-            return self._feed(data, final, False)
+            return self._feed(data, final, records)
         except Exception:  # noqa: BLE001 - the parser must never raise; count and start clean
             self.counters.decode_errors += 1
             self.reset()
