@@ -89,7 +89,6 @@ from link.messages import (
     VehicleCommand,
     VehicleMode,
 )
-from link.rotation import quat_multiply
 from link.signing import SIGNATURE_BLOCK_LEN, SignatureCheck, Signing
 
 MAGIC_V2 = 0xFD
@@ -103,8 +102,7 @@ MAVLINK_VERSION = 3  # HEARTBEAT.mavlink_version: fixed at 3 by the MAVLink defi
 UINT16_NOT_SENT = 0xFFFF
 ODOMETRY_QUALITY_TRUTH = 100  # best quality on MAVLink's 1..100 scale
 
-_HEADER = struct.Struct("<BBBBBBBHB")  # magic, len, incompat, compat, seq, sysid, compid, msgid (24 bit)
-_HEADER_AFTER_MAGIC = struct.Struct("<BBBBBBHB")
+_HEADER_AFTER_MAGIC = struct.Struct("<BBBBBBHB")  # len, incompat, compat, seq, sysid, compid, msgid (24 bit)
 _MAGIC = bytes([MAGIC_V2])
 _CRC = struct.Struct("<H")
 _SQRT_HALF = math.sqrt(0.5)
@@ -141,9 +139,6 @@ def flu_to_frd(v: Vec3) -> Vec3:
 
 
 frd_to_flu = flu_to_frd
-
-
-
 
 
 # Rotation taking ENU coordinates to NED coordinates: R = [[0,1,0],[1,0,0],[0,0,-1]], the 180 deg turn
@@ -342,11 +337,12 @@ def _enc_battery(m: BatteryStatus, limits, target: int) -> bytes:
 
 # ODOMETRY's wire order is time, the 13 state floats, then what truth frames never change (both
 # covariances unknown, frames, reset counter, estimator type, quality): packed once, appended per frame.
-_PACK_ODOMETRY_STATE = struct.Struct("<Q13f").pack
+_ODOMETRY_STATE = struct.Struct("<Q13f")
+_PACK_ODOMETRY_STATE = _ODOMETRY_STATE.pack
 _ODOMETRY_TRUTH_TAIL = _PACK_ODOMETRY(
     0, *(0.0,) * 13, *_NAN_COVARIANCE, *_NAN_COVARIANCE,
     mav.MAV_FRAME_LOCAL_NED, mav.MAV_FRAME_LOCAL_NED, 0, mav.MAV_ESTIMATOR_TYPE_UNKNOWN, ODOMETRY_QUALITY_TRUTH,
-)[struct.calcsize("<Q13f"):]
+)[_ODOMETRY_STATE.size:]
 
 
 def _enc_truth(m: TruthState, limits, target: int) -> bytes:
@@ -611,7 +607,6 @@ class FrameParser:
         setattr(self.counters, counter, getattr(self.counters, counter) + 1)
         if self.frame_observer is not None:
             self.frame_observer(system_id, component_id, sequence)
-        return None
 
     @property
     def pending_bytes(self) -> int:
@@ -626,22 +621,19 @@ class FrameParser:
     def feed(self, data: bytes | bytearray | memoryview, final: bool = False) -> list[Decoded]:
         """Decode every complete frame in the bytes so far. `final=True`: `data` ended a datagram, so
         an incomplete frame at its end will never complete (dropped and counted in truncated_frames)."""
-        return self._feed_safely(data, final, True)
+        return [Decoded(*fields) for fields in self.feed_fields(data, final)]
 
     def feed_fields(self, data: bytes | bytearray | memoryview, final: bool = False) -> list[tuple]:
         """feed() without building Decoded records: one tuple of Decoded's fields, in Decoded's order,
-        per frame (what Endpoint.receive uses: it turns each frame into a Received at once)."""
-        return self._feed_safely(data, final, False)
-
-    def _feed_safely(self, data, final: bool, records: bool) -> list:
+        per frame (what Endpoint.deliver uses: it turns each frame into a Received at once)."""
         try:
-            return self._feed(data, final, records)
+            return self._feed(data, final)
         except Exception:  # noqa: BLE001 - the parser must never raise; count and start clean
             self.counters.decode_errors += 1
             self.reset()
             return []
 
-    def _feed(self, data, final: bool, records: bool) -> list:
+    def _feed(self, data, final: bool) -> list[tuple]:
         # One loop does framing, CRC and decoding, with no helper calls on the way of a good frame: this
         # runs per frame at 500 Hz-1 kHz, and on the link's round trip right after a wake-up, where every
         # operation costs several times its hot-loop time (the caches are cold; see link.bench).
@@ -660,7 +652,7 @@ class FrameParser:
             if buf[pos] == MAGIC_V2:  # the usual case (a datagram, or right after a frame): no search
                 i = pos
             else:
-                i = buf.find(b"\xfd", pos)
+                i = buf.find(_MAGIC, pos)
                 if i < 0:
                     c.garbage_bytes += n - pos
                     return out
@@ -669,7 +661,8 @@ class FrameParser:
             if n - i < MIN_FRAME_LEN:
                 end = n + 1  # unknown until the length byte has arrived
             else:
-                _, plen, flags, _, sequence, system_id, component_id, msgid_lo, msgid_hi = _HEADER.unpack_from(buf, i)
+                plen, flags, _, sequence, system_id, component_id, msgid_lo, msgid_hi = \
+                    _HEADER_AFTER_MAGIC.unpack_from(buf, i + 1)
                 end = i + MIN_FRAME_LEN + plen + (SIGNATURE_BLOCK_LEN if flags & IFLAG_SIGNED else 0)
             if end > n:  # incomplete: wait for more bytes, unless this was a whole datagram
                 if not final:
@@ -724,10 +717,7 @@ class FrameParser:
                 continue
             c.frames_ok += 1
             message, target = result
-            if records:
-                out.append(Decoded(message, system_id, component_id, sequence, msgid, signed, frame, target, link_id))
-            else:
-                out.append((message, system_id, component_id, sequence, msgid, signed, frame, target, link_id))
+            out.append((message, system_id, component_id, sequence, msgid, signed, frame, target, link_id))
         if pos < n:
             self._pending = buf[pos:]  # an incomplete frame starting with its magic byte
         return out
@@ -834,6 +824,6 @@ def measure_codec_costs(n: int = 2000, signing: bool = False) -> dict[str, tuple
 
 __all__ = [
     "ActuatorLimits", "Codec", "Decoded", "FrameParser", "ParserCounters", "measure_codec_costs",
-    "sample_messages", "enu_to_ned", "ned_to_enu", "flu_to_frd", "frd_to_flu", "quat_multiply",
+    "sample_messages", "enu_to_ned", "ned_to_enu", "flu_to_frd", "frd_to_flu",
     "quat_enu_flu_to_ned_frd", "quat_ned_frd_to_enu_flu",
 ]
