@@ -173,7 +173,7 @@ def emulator_command(argv: list[str]) -> int:
     with emulator:
         log.info("emulator up: %d vehicle(s), %s clock, radio %s, seed %d, keys %s/vehicle/1..%d/..., "
                  "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, config.seed,
-                 config.prefix, config.vehicles, emulator.lookahead_s * 1e3)
+                 config.prefix, config.vehicles, emulator.lookahead_horizon_s() * 1e3)
         emulator.run()
     if args.radio_ledger:
         emulator.write_radio_report(args.radio_ledger)

@@ -212,12 +212,6 @@ class QuadrotorDynamics:
         self._thrust_n, self._u = self._inputs_for(speeds)
 
     # --- outputs ----------------------------------------------------------------------------------
-    def wrench(self, speeds=None) -> tuple[float, float, float, float]:
-        """[T (N), Mx, My, Mz (N m)] = A w^2 for the given (default: current) rotor speeds."""
-        w = self._w if speeds is None else speeds
-        s0, s1, s2, s3 = w[0] * w[0], w[1] * w[1], w[2] * w[2], w[3] * w[3]
-        return tuple(r[0] * s0 + r[1] * s1 + r[2] * s2 + r[3] * s3 for r in self._alloc)
-
     def specific_force_flu(self) -> Vec3:
         """Non-gravitational force per unit mass in body FLU (m/s^2): what an ideal accelerometer reads.
 

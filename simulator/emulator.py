@@ -76,7 +76,7 @@ from link.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
 from link.transports import Transport, open_transport
 from link.vehicle import MocapRoom, Vehicle
 from link.world import World
-from simulator.radio import RadioChannel, RadioProfile
+from simulator.radio import TIME_EPS_S, RadioChannel, RadioProfile
 from simulator.vehicle_sim import SimVehicle
 
 log = logging.getLogger("cfstack.emulator")
@@ -86,9 +86,10 @@ WAIT_LOG_PERIOD_S = 5.0  # how often a waiting lockstep emulator says so
 JOIN_POLL_S = 0.05  # nobody in the lockstep yet: how long to block between looks for a join
 LAGGARD_POLL_S = 0.005  # waiting for one ack or uplink frame: longest single block (keeps Ctrl-C prompt)
 REALTIME_MAX_SLEEP_S = 0.05  # the realtime loop never sleeps longer than this (keeps Ctrl-C prompt)
-# A step may run ahead only if it starts this much before the earliest possible uplink delivery, so
-# float rounding of t_k + L can never let a step start at the exact instant a frame becomes due.
-LOOKAHEAD_MARGIN_S = 1e-9
+# A step may run ahead only if it starts this much before the earliest possible uplink delivery: the
+# radio hands out at a step start what is due within TIME_EPS_S of it, so a smaller margin could let a
+# run-ahead step take a frame that float rounding of t_k + L put just after its start.
+LOOKAHEAD_MARGIN_S = TIME_EPS_S
 # Frames published together (one tick's, or one realtime step's) share a sample up to this size: far
 # below a UDP datagram (65,507 B) and zenoh's default batch (65,535 B).
 MAX_SAMPLE_BYTES = 8192
@@ -368,10 +369,9 @@ class VehicleNode:
             return
         sim = self.sim
         t = sim.t_s
-        up = self.uplink_radio
-        next_up = up.next_delivery_s()
-        if next_up is not None and next_up <= t:
-            self._deliver_uplink(up.pop_due(t), t)
+        due = self.uplink_radio.pop_due(t)  # [] at once when nothing is due (the radio's own check)
+        if due:
+            self._deliver_uplink(due, t)
         sim.step()
         t = sim.t_s
         outbox = self.outbox
@@ -465,7 +465,6 @@ class Emulator:
         starts = config.start_positions_enu_m or default_starts(config.world, config.vehicles, config.airborne)
         self.nodes = [VehicleNode(config, i + 1, seeds[i], starts[i]) for i in range(config.vehicles)]
         self.dt_s = 1.0 / config.physics_rate_hz
-        self.lookahead_s = min(n.uplink_radio.min_latency_s for n in self.nodes) if config.lookahead else 0.0
         self.steps = 0  # physics steps done (lockstep: may run ahead of the last tick, see the docstring)
         self.tick = -1  # the last lockstep tick published
         self.tick_steps = 0  # the step count (simulation time) of that tick

@@ -184,6 +184,7 @@ class Firmware:
         slack = 1.0 + params.limit_relative_tolerance
         self._max_thrust_n = vehicle.max_thrust_n * slack
         self._max_moment_nm = tuple(float(v) * slack for v in vehicle.max_moment_nm)
+        self._max_rates_radps = (params.max_rate_radps,) * 3
         # energy per tick (J): k_D sum(w^3) / efficiency + avionics, times the tick period
         self._rotor_j_per_cube = vehicle.k_drag_torque / params.motor_efficiency * self.tick_period_s
         self._avionics_j = params.avionics_power_w * self.tick_period_s
@@ -220,14 +221,12 @@ class Firmware:
     def _valid_attitude_target(self, sp: AttitudeTarget) -> bool:
         if not self._thrust_ok(sp.time_s, sp.thrust_n):
             return False
-        if len(sp.attitude_wxyz) != 4 or len(sp.rates_flu_radps) != 3:
-            return False
-        if not _finite(*sp.attitude_wxyz, *sp.rates_flu_radps):
+        if len(sp.attitude_wxyz) != 4 or not _finite(*sp.attitude_wxyz):
             return False
         w, x, y, z = sp.attitude_wxyz
         if abs(math.sqrt(w * w + x * x + y * y + z * z) - 1.0) > self.params.quaternion_norm_tolerance:
             return False
-        return _within(sp.rates_flu_radps, (self.params.max_rate_radps,) * 3)
+        return _within(sp.rates_flu_radps, self._max_rates_radps)  # also rejects NaN, inf and a wrong length
 
     def _thrust_ok(self, time_s, thrust_n) -> bool:
         try:  # a NaN or inf thrust fails the range test

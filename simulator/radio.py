@@ -137,12 +137,6 @@ class CrazyradioLink:
         packet = self.time_on_air_s(self.header_bytes_per_packet + data_bytes)
         return self.settling_s + packet + self.auto_retransmit_delay_s
 
-    def packet_data_sizes(self, frame_bytes: int) -> list[int]:
-        """Data bytes of each packet of a frame: full packets, then the remainder (>= 1 packet)."""
-        d = self.data_bytes_per_packet
-        count = max(1, -(-frame_bytes // d))
-        return [d] * (count - 1) + [frame_bytes - d * (count - 1)]
-
 
 @dataclass(frozen=True)
 class RadioProfile:

@@ -1,18 +1,18 @@
 """Small quaternion helpers on plain floats for the emulator's 1 kHz inner loops.
 
 Takes in: quaternions (w, x, y, z) rotating body FLU vectors into world ENU, 3-vectors, angles in rad.
-Gives out: products, rotated vectors, exponential-map and yaw conversions, as tuples of floats.
+Gives out: norms, yaw and Euler conversions, rotation angles, as tuples of floats.
 
 Why not scipy.spatial.transform.Rotation: it costs tens of microseconds per call on one rotation,
 and the emulator's budget is < 50 us for a whole physics step; the tests check these helpers against
-scipy. The basics shared with every package (product, conjugate) come from link.rotation.
+scipy. The basics shared with every package (product, conjugate, R(q)) are in link.rotation.
 """
 
 from __future__ import annotations
 
 import math
 
-from link.rotation import Quat, quat_conjugate, quat_multiply  # noqa: F401 (re-exported)
+from link.rotation import Quat
 
 Vec3 = tuple[float, float, float]
 
@@ -26,35 +26,6 @@ def quat_norm(q: Quat) -> float:
 def quat_normalize(q: Quat) -> Quat:
     n = quat_norm(q)
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
-
-
-def quat_rotate(q: Quat, v: Vec3) -> Vec3:
-    """R(q) v: a body FLU vector expressed in world ENU (q unit)."""
-    w, x, y, z = q
-    vx, vy, vz = v
-    # v + 2 w (u x v) + 2 u x (u x v), u = (x, y, z): the expanded form of q v q*
-    tx = 2.0 * (y * vz - z * vy)
-    ty = 2.0 * (z * vx - x * vz)
-    tz = 2.0 * (x * vy - y * vx)
-    return (
-        vx + w * tx + y * tz - z * ty,
-        vy + w * ty + z * tx - x * tz,
-        vz + w * tz + x * ty - y * tx,
-    )
-
-
-def quat_rotate_inverse(q: Quat, v: Vec3) -> Vec3:
-    """R(q)^T v: a world ENU vector expressed in body FLU (q unit)."""
-    return quat_rotate(quat_conjugate(q), v)
-
-
-def quat_from_rotvec(rx: float, ry: float, rz: float) -> Quat:
-    """exp of a rotation vector (axis * angle, rad)."""
-    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if angle < 1e-12:
-        return (1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz)  # first order; normalised to 1 within 1e-24
-    s = math.sin(0.5 * angle) / angle
-    return (math.cos(0.5 * angle), rx * s, ry * s, rz * s)
 
 
 def quat_from_yaw(yaw_rad: float) -> Quat:

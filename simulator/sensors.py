@@ -153,7 +153,7 @@ class MocapModel:
 
 
 def _quat_exp(rotvec: np.ndarray) -> np.ndarray:
-    """Rows (w, x, y, z) = exp of rotation vectors (rad), as simulator.rotation.quat_from_rotvec."""
+    """Rows (w, x, y, z) = exp of rotation vectors (rad): (cos(a/2), sin(a/2) r/a), a = |r|."""
     angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
     small = angle < 1e-12
     safe = np.where(small, 1.0, angle)

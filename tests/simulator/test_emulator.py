@@ -206,10 +206,12 @@ def test_the_lookahead_horizon_is_the_first_firmware_cycle_after_the_minimum_lat
 
 
 def test_no_lookahead_when_disabled_or_when_the_radio_has_no_latency():
-    assert Emulator(config(lookahead=False)).lookahead_s == 0.0
-    assert Emulator(config(radio=load_radio_profile("ideal"))).lookahead_s == 0.0
+    assert Emulator(config(lookahead=False)).lookahead_horizon_s() == 0.0
+    assert Emulator(config(radio=load_radio_profile("ideal"))).lookahead_horizon_s() == 0.0
     lab = load_radio_profile("lab")
-    assert Emulator(config(radio=lab)).lookahead_s == lab.min_latency_s
+    cycle_s = 1.0 / load_firmware_params().commander_rate_hz
+    expected = math.ceil(lab.min_latency_s / cycle_s) * cycle_s  # the first firmware cycle at or after L
+    assert lab.min_latency_s <= Emulator(config(radio=lab)).lookahead_horizon_s() == pytest.approx(expected)
 
 
 @pytest.mark.parametrize("rate_hz", [1000.0, 300.0])
