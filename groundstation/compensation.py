@@ -62,12 +62,12 @@ class LatencyCompensator:
         acting, pending = self._acting_and_pending(t, uplink_latency_s)
         attitude_mode = self.mode == "attitude"
         step_s, m = self.step_s, self.m
+        arrived, count = 0, len(pending)  # pending is in sending order, and t only grows: one forward pass
         while t < t_act - 1e-12:
             dt = min(step_s, t_act - t)
-            for command in reversed(pending):  # the newest command that has reached the vehicle by t
-                if command.sent_s + uplink_latency_s <= t + 1e-12:
-                    acting = command
-                    break
+            while arrived < count and pending[arrived].sent_s + uplink_latency_s <= t + 1e-12:
+                acting = pending[arrived]  # the newest command that has reached the vehicle by t
+                arrived += 1
             if acting is None:  # nothing of ours acts yet: coast
                 px, py, pz = px + vx * dt, py + vy * dt, pz + vz * dt
                 t += dt
