@@ -41,8 +41,7 @@ log = logging.getLogger("cfstack.groundstation")
 NS = 1_000_000_000
 COMPENSATION_RTT_SAMPLES = 5  # median over the last few TIMESYNC round trips (2 Hz): robust to one late reply
 # Compensate only while flying a reference: on the ground and while arming the model has no floor contact.
-COMPENSATED_PHASES = (Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.HOVER, Phase.LAND, Phase.FAILSAFE_HOLD,
-                      Phase.FAILSAFE_DESCENT)
+COMPENSATED_PHASES = (Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.HOVER, Phase.LAND, Phase.FAILSAFE_HOLD)
 TRUTH_HISTORY = 512  # truth samples kept to grade the estimate at its own time (~1 s at 500 Hz)
 
 

@@ -61,7 +61,6 @@ class MissionParams:
     takeoff_speed_mps: float
     landing_speed_mps: float
     touchdown_height_m: float
-    failsafe_descent_speed_mps: float
     goal_position_tolerance_m: float
     goal_speed_tolerance_mps: float
     mocap_hold_after_s: float
@@ -84,7 +83,7 @@ def load_mission_params(name_or_path: str = "mission") -> MissionParams:
                                                  "land_timeout_s", "final_report_wait_s",
                                                  "failsafe_observe_s")},
         **{k: motion.number(k, **pos) for k in ("takeoff_height_m", "takeoff_speed_mps", "landing_speed_mps",
-                                                 "touchdown_height_m", "failsafe_descent_speed_mps")},
+                                                 "touchdown_height_m")},
         goal_position_tolerance_m=goal.number("position_tolerance_m", **pos),
         goal_speed_tolerance_mps=goal.number("speed_tolerance_mps", **pos),
         **{k: failsafe.number(k, **pos) for k in ("mocap_hold_after_s", "mocap_descend_after_s",
@@ -150,10 +149,10 @@ class Mission:
     def _hold(self, position: np.ndarray, t: float) -> Trajectory:
         return Hover(np.asarray(position, float), duration_s=1e9)
 
-    def _descent(self, view: VehicleView, speed: float) -> Trajectory:
+    def _descent(self, view: VehicleView) -> Trajectory:
         target = view.position_enu_m.copy()
         target[2] = self.ground_height(target)
-        return Line(view.position_enu_m, target, speed_mps=speed)
+        return Line(view.position_enu_m, target, speed_mps=self.p.landing_speed_mps)
 
     def reference_at(self, t: float) -> FlatOutput | None:
         """The current phase's reference at another time t (latency compensation looks ahead)."""
@@ -187,7 +186,7 @@ class Mission:
             if self.phase == Phase.ARM or not view.armed:
                 self._enter(Phase.DISARM, t)
             else:
-                self._enter(Phase.LAND, t, self._descent(view, self.p.landing_speed_mps))
+                self._enter(Phase.LAND, t, self._descent(view))
         return self._HANDLERS[self.phase](self, t, view)
 
     def _connect(self, t: float, view: VehicleView | None) -> MissionStep:
@@ -246,7 +245,7 @@ class Mission:
         if (self.reached_goal_s is not None and waited >= self.p.end_hover_s) or waited >= self.p.max_end_hover_s:
             if self.result is None:
                 self.result = "reached_goal" if self.reached_goal_s is not None else "timeout"
-            self._enter(Phase.LAND, t, self._descent(view, self.p.landing_speed_mps))
+            self._enter(Phase.LAND, t, self._descent(view))
         return MissionStep(self.phase, self._segment_ref(t))
 
     def _land(self, t: float, view: VehicleView) -> MissionStep:

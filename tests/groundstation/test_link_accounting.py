@@ -162,7 +162,6 @@ def test_timesync_and_frame_ages_equal_the_configured_latency(tmp_path):
     assert link["age_ms_p99"] == pytest.approx(1e3 * latency_s, abs=1e-6)
 
 
-@pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
 def _states_hash(tmp_path, seed: int, name: str, mode: str, *extra: str) -> str:
     log = tmp_path / name
     run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / "maze_2024_1.json"), "--mode",
@@ -172,12 +171,14 @@ def _states_hash(tmp_path, seed: int, name: str, mode: str, *extra: str) -> str:
     return hashlib.sha256((log / "states.csv").read_bytes()).hexdigest()
 
 
+@pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
 def test_same_seed_gives_byte_identical_states_and_another_seed_differs(tmp_path):
     first = _states_hash(tmp_path, 11, "a", "attitude")
     assert _states_hash(tmp_path, 11, "b", "attitude") == first
     assert _states_hash(tmp_path, 12, "c", "attitude") != first
 
 
+@pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
 def test_pipelined_ticks_give_the_same_flight_as_strict_lockstep(tmp_path):
     """In moments mode at 500 Hz the emulator publishes a tick before the last one's ack arrives (the
     firmware-cycle lookahead covers a whole tick); with --no-lookahead it waits for every ack. The
