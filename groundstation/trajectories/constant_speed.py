@@ -31,10 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from groundstation.planning import load_planning_params
-from groundstation.trajectories.flat import at_rest
+from groundstation.trajectories.flat import at_rest, flat_output
 from groundstation.trajectory import FlatOutput
 from link.config import Params
 from link.errors import UserError
+
+_ZERO_DERIVATIVES = (0.0,) * 9  # acceleration, jerk and snap within a constant-speed segment
 
 
 @dataclass(frozen=True)
@@ -84,15 +86,15 @@ class ConstantSpeedTrajectory:
         self.waypoints_m = points
         self.speed_mps = float(speed_mps)
         steps = np.diff(points, axis=0)
-        self.lengths_m = np.linalg.norm(steps, axis=1)
-        self.directions = steps / self.lengths_m[:, None] if len(steps) else np.zeros((0, 3))
-        self.segment_times_s, self.ramp_in_s, self.ramp_out_s = _timing(self.lengths_m, self.speed_mps, k)
+        lengths_m = np.linalg.norm(steps, axis=1)
+        directions = steps / lengths_m[:, None] if len(steps) else np.zeros((0, 3))
+        self.segment_times_s, ramp_in_s, ramp_out_s = _timing(lengths_m, self.speed_mps, k)
         self.knot_times_s = np.r_[0.0, np.cumsum(self.segment_times_s)]
         self.duration_s = float(self.knot_times_s[-1])
         self._knots = self.knot_times_s.tolist()
         # Per segment, as floats: start point, direction, length, time, ramp-in and ramp-out times.
-        self._segments = list(zip(points[:-1].tolist(), self.directions.tolist(), self.lengths_m.tolist(),
-                                  self.segment_times_s.tolist(), self.ramp_in_s.tolist(), self.ramp_out_s.tolist(),
+        self._segments = list(zip(points[:-1].tolist(), directions.tolist(), lengths_m.tolist(),
+                                  self.segment_times_s.tolist(), ramp_in_s.tolist(), ramp_out_s.tolist(),
                                   strict=True))
 
     @staticmethod
@@ -114,9 +116,8 @@ class ConstantSpeedTrajectory:
         i = min(bisect.bisect_right(self._knots, t_s) - 1, n - 1)
         (px, py, pz), (lx, ly, lz), length, duration, ramp_in, ramp_out = self._segments[i]
         distance, speed = _along(self.speed_mps, length, duration, ramp_in, ramp_out, t_s - self._knots[i])
-        zeros = np.zeros
-        return FlatOutput(np.array([px + distance * lx, py + distance * ly, pz + distance * lz]),
-                          np.array([speed * lx, speed * ly, speed * lz]), zeros(3), zeros(3), zeros(3))
+        return flat_output([px + distance * lx, py + distance * ly, pz + distance * lz,
+                            speed * lx, speed * ly, speed * lz, *_ZERO_DERIVATIVES])
 
 
 def _along(v: float, length: float, duration: float, ramp_in: float, ramp_out: float, s: float
