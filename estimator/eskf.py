@@ -431,7 +431,7 @@ class ErrorStateKF:
         start = len(self._nodes)
         t = node.time_s
         if not self._pending or self._pending[0].time_s > t:  # nothing released (sorted by time)
-            self._advance_imu(node, self._nodes[-1], None)
+            self._advance(node, self._nodes[-1], None)
             self._nodes.append(node)
             self._times.append(t)
             return
@@ -497,30 +497,27 @@ class ErrorStateKF:
         reuse = True
         for j in range(i, len(nodes)):
             node, prev = nodes[j], nodes[j - 1]
+            stored = node.transition if reuse and node.start_s == prev.time_s else None
             if node.kind == _IMU:
-                self._advance_imu(node, prev, node.transition if reuse and node.start_s == prev.time_s else None)
-            elif not self._process_mocap(j, reuse):
+                self._advance(node, prev, stored)
+            elif not self._process_mocap(j, stored):
                 reuse = False
 
-    def _advance_imu(self, node: _Node, prev: _Node, stored: tuple | None) -> None:
-        """Nominal state and (F, Q) of IMU node `node` from `prev`; its P is left pending."""
+    def _advance(self, node: _Node, prev: _Node, stored: tuple | None) -> None:
+        """Nominal state and (F, Q) of `node` from `prev` (stored: an earlier pass's (F, Q) over the same
+        interval, or None); its P is left pending (_covariance_at)."""
         node.x, node.transition = self._propagate(prev.x, prev.f, prev.w, node.f, node.w,
                                                   node.time_s - prev.time_s, stored)
         node.start_s = prev.time_s
         node.P = None
 
-    def _process_mocap(self, j: int, reuse: bool) -> bool:
-        """Propagate to mocap node j, then gate / update / inject / re-initialise; False after a
-        re-initialisation (later transitions must not be reused)."""
-        node, prev = self._nodes[j], self._nodes[j - 1]
+    def _process_mocap(self, j: int, stored: tuple | None) -> bool:
+        """Propagate to mocap node j (as _advance), then gate / update / inject / re-initialise; False
+        after a re-initialisation (later transitions must not be reused)."""
+        node = self._nodes[j]
         node.f, node.w = self._signal_at(j)
-        stored = node.transition if reuse and node.start_s == prev.time_s else None
-        x, node.transition = self._propagate(prev.x, prev.f, prev.w, node.f, node.w,
-                                             node.time_s - prev.time_s, stored)
-        node.start_s = prev.time_s
-        P = self._covariance_at(j - 1)
-        if node.transition is not None:
-            P = self._predict(P, node.transition)
+        self._advance(node, self._nodes[j - 1], stored)
+        x, P = node.x, self._covariance_at(j)
         if node.status == _NEW:
             node.status = self._decide(self._innovate(x, P, node), node.time_s)
             if node.status == _ACCEPTED:
@@ -530,9 +527,8 @@ class ErrorStateKF:
             x, P = self._inject(x)
         if node.status == _REINIT:
             x, P = self._reinitialised(x, P, node)
-            reuse = False
         node.x, node.P = x, P
-        return reuse
+        return node.status != _REINIT
 
     def _covariance_at(self, j: int) -> np.ndarray:
         """P of node j, running filterpy predict over the intervals whose P is still pending.
