@@ -134,10 +134,17 @@ class Mission:
         self.result: str | None = None  # reached_goal | timeout | failsafe | aborted | crashed
         self.failsafe_reason: str | None = None
         self.abort_requested = False
-        self._last_arm_s = -1.0
-        self._last_land_s = -math.inf
+        self._last_sent_s: dict[CommandKind, float] = {}  # when each repeated command last went out
 
     # --- helpers ---------------------------------------------------------------------------------
+    def _repeated(self, kind: CommandKind, t: float) -> CommandKind | None:
+        """`kind` if it was not sent in the last COMMAND_REPEAT_S, else None: commands are re-sent until
+        the vehicle reports them done, because the uplink may lose them."""
+        if t - self._last_sent_s.get(kind, -math.inf) < COMMAND_REPEAT_S:
+            return None
+        self._last_sent_s[kind] = t
+        return kind
+
     def _enter(self, phase: Phase, t: float, segment: Trajectory | None = None) -> None:
         self.phase = phase
         self.phase_start_s = t
@@ -216,11 +223,7 @@ class Mission:
             self.failsafe_reason = "vehicle did not arm"
             self._enter(Phase.DONE, t)
             return MissionStep(self.phase, None)
-        command = None
-        if t - self._last_arm_s >= COMMAND_REPEAT_S:  # re-send: the uplink may lose it
-            command = CommandKind.ARM
-            self._last_arm_s = t
-        return MissionStep(self.phase, hold, command)
+        return MissionStep(self.phase, hold, self._repeated(CommandKind.ARM, t))
 
     def _takeoff(self, t: float, view: VehicleView) -> MissionStep:
         if t - self.phase_start_s >= self.segment.duration_s:
@@ -266,10 +269,7 @@ class Mission:
         if not view.armed:
             self._enter(Phase.DISARM, t)
             return MissionStep(self.phase, None)
-        command = None
-        if not view.landing and t - self._last_land_s >= COMMAND_REPEAT_S:  # re-send: the uplink may lose it
-            command = CommandKind.LAND
-            self._last_land_s = t
+        command = None if view.landing else self._repeated(CommandKind.LAND, t)
         return MissionStep(self.phase, None, command)
 
     def _failsafe_hold(self, t: float, view: VehicleView) -> MissionStep:
