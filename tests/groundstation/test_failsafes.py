@@ -45,6 +45,10 @@ from simulator.emulator import GroundFrameGate
 from simulator.firmware import load_firmware_params
 from simulator.radio import load_radio_profile
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from flight_helpers import free_port  # noqa: E402
+
 VEHICLE = load_vehicle("crazyflie")
 LIMITS = ActuatorLimits.from_vehicle(VEHICLE)
 FIRMWARE = load_firmware_params()
@@ -337,7 +341,7 @@ def test_signed_flight_ignores_a_rogue_publishers_unsigned_and_replayed_frames(w
     code, reference, _, _ = fly(world, tmp_path / "reference", radio=radio, env=env)
     assert code == 0 and reference["result"] == "reached_goal"
 
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     prefix = f"fs{uuid.uuid4().hex[:8]}"
     report_path = tmp_path / "radio.json"
     emulator = subprocess.Popen(
@@ -405,11 +409,3 @@ def test_the_uplink_gate_counts_only_the_ground_stations_own_fresh_signed_frames
 def test_a_bad_cut_option_is_one_line_and_exit_code_2(option):
     run = cfstack("emulator", option, timeout=60)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1 and "--cut-" in run.stderr
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]

@@ -23,6 +23,10 @@ from link.messages import ImuSample, ThrustMoment
 from link.tlog import read_tlog
 from link.vehicle import load_vehicle
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from flight_helpers import free_port  # noqa: E402
+
 SUMMARY_KEYS = {"result", "reached_goal", "collided", "min_clearance_m", "flight_time_s", "rms_tracking_error_m",
                 "max_tracking_error_m", "final_position_error_m", "estimator", "link", "sim_time_s",
                 "wall_time_s", "log_dir"}
@@ -33,14 +37,6 @@ HOVER_RMS_TARGET_M = 0.01  # issue 4
 def cfstack(*args, timeout=240, **kw):
     return subprocess.run([sys.executable, "-m", "link", *args], capture_output=True, text=True,
                           timeout=timeout, stdin=subprocess.DEVNULL, **kw)
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def check_summary(summary: dict) -> None:

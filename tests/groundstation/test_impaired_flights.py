@@ -4,38 +4,22 @@ and `harsh` radio profiles, and with 30 % i.i.d. loss on both directions (lockst
 import json
 import subprocess
 import sys
-import tomllib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from flight_helpers import radio_profile  # noqa: E402
+
 WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
-RADIO_DIR = Path(__file__).resolve().parents[2] / "simulator" / "params" / "radio"
 LAB_MAZES = tuple(sorted(p.stem for p in WORLDS.glob("test_lab_*.json")) +
                   sorted(p.stem for p in WORLDS.glob("maze_20*.json"))) if WORLDS.is_dir() else ()
 PROFILES = ("lab", "harsh", "loss30")
 CONCURRENT_FLIGHTS = 3
 
 pytestmark = pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
-
-
-def loss30_profile(folder: Path) -> Path:
-    """The ideal profile with 30 % i.i.d. loss (each direction has its own channel)."""
-    text = (RADIO_DIR / "ideal.toml").read_text()
-    assert tomllib.loads(text)["loss"]["probability"] == 0.0
-    text = text.replace('name = "ideal"', 'name = "loss30"')
-    lines = text.splitlines()
-    in_loss = False
-    for i, line in enumerate(lines):
-        if line.strip().startswith("["):
-            in_loss = line.strip() == "[loss]"
-        elif in_loss and line.startswith("probability"):
-            lines[i] = "probability = 0.30"
-    path = folder / "loss30.toml"
-    path.write_text("\n".join(lines) + "\n")
-    assert tomllib.loads(path.read_text())["loss"]["probability"] == 0.30
-    return path
 
 
 def fly(world: str, radio: str, log: Path) -> tuple[dict | None, str]:
@@ -48,7 +32,7 @@ def fly(world: str, radio: str, log: Path) -> tuple[dict | None, str]:
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
     root = tmp_path_factory.mktemp("impaired")
-    radios = {"lab": "lab", "harsh": "harsh", "loss30": str(loss30_profile(root))}
+    radios = {"lab": "lab", "harsh": "harsh", "loss30": str(radio_profile(root, "loss30", loss=0.30))}
     cells = [(w, p) for w in LAB_MAZES for p in PROFILES]
     with ThreadPoolExecutor(CONCURRENT_FLIGHTS) as pool:
         futures = {c: pool.submit(fly, c[0], radios[c[1]], root / f"{c[0]}_{c[1]}") for c in cells}

@@ -25,51 +25,13 @@ from link.keys import GROUND_STATION_SYSTEM_ID
 from link.tlog import read_tlog
 from link.vehicle import load_vehicle
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from flight_helpers import free_port, radio_profile  # noqa: E402
+
 WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
-RADIO_DIR = Path(__file__).resolve().parents[2] / "simulator" / "params" / "radio"
 MIN_FRAMES = 10_000
 RATE_TOLERANCE = 0.02  # 2 percentage points
-
-
-def profile(tmp_path: Path, name: str, latency_s=0.0, loss=0.0, burst=(0.0, 1.0, 0.0, 0.0)) -> Path:
-    """A radio profile file: the ideal profile's layout with the given latency and loss."""
-    p_gb, p_bg, loss_good, loss_bad = burst
-    text = (RADIO_DIR / "ideal.toml").read_text()
-    import tomllib
-
-    data = tomllib.loads(text)
-    data["name"] = name
-    data["source"] = "test profile"
-    data["latency"].update(base_s=latency_s, jitter_s=0.0)
-    data["loss"]["probability"] = loss
-    data["burst"].update(p_good_to_bad=p_gb, p_bad_to_good=p_bg, loss_good=loss_good, loss_bad=loss_bad)
-    path = tmp_path / f"{name}.toml"
-    path.write_text(_toml(data))
-    return path
-
-
-def _toml(data: dict) -> str:
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return json.dumps(v)
-        return repr(v)
-
-    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    for section, table in data.items():
-        if isinstance(table, dict):
-            lines.append(f"\n[{section}]")
-            lines += [f"{k} = {value(v)}" for k, v in table.items()]
-    return "\n".join(lines) + "\n"
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def fly_against_emulator(tmp_path: Path, radio: Path, *gs_args: str) -> tuple[dict, dict, Path]:
@@ -123,7 +85,7 @@ def configured_loss(case: dict) -> float:
 
 @pytest.mark.parametrize("case", list(LOSS_CASES))
 def test_measured_loss_matches_the_radio_frame_for_frame(tmp_path, case):
-    radio = profile(tmp_path, case, **LOSS_CASES[case])
+    radio = radio_profile(tmp_path, case, **LOSS_CASES[case])
     summary, report, log = fly_against_emulator(tmp_path, radio, "--trajectory", "hover", "--mode", "moments")
     link = summary["link"]
     down, up = report["downlink"], report["uplink"]
@@ -150,7 +112,7 @@ def test_measured_loss_matches_the_radio_frame_for_frame(tmp_path, case):
 
 def test_timesync_and_frame_ages_equal_the_configured_latency(tmp_path):
     latency_s = 0.020  # a multiple of the 2 ms control tick and of the IMU period: no quantisation
-    radio = profile(tmp_path, "fixed20", latency_s=latency_s)
+    radio = radio_profile(tmp_path, "fixed20", latency_s=latency_s)
     summary, _, _ = fly_against_emulator(tmp_path, radio, "--trajectory", "hover", "--mode", "moments",
                                          "--latency-compensation")
     link = summary["link"]

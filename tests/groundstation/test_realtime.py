@@ -15,17 +15,9 @@ from pathlib import Path
 
 import pytest
 
-RADIO_DIR = Path(__file__).resolve().parents[2] / "simulator" / "params" / "radio"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-
-def fixed_latency_profile(folder: Path, latency_s: float) -> Path:
-    """The ideal profile with a fixed one-way latency and nothing else."""
-    text = (RADIO_DIR / "ideal.toml").read_text()
-    text = re.sub(r"(?m)^base_s = [0-9.]+", f"base_s = {latency_s!r}", text)
-    text = re.sub(r'(?m)^name = "ideal"', 'name = "fixed_latency"', text)
-    path = folder / "fixed_latency.toml"
-    path.write_text(text)
-    return path
+from flight_helpers import free_port, radio_profile  # noqa: E402
 
 pytestmark = pytest.mark.realtime
 
@@ -37,18 +29,10 @@ DEADLINE_MISS_MAX = 0.01
 LATENCY_TOLERANCE_MS = 2.0
 
 
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def realtime_flight(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("realtime")
-    radio = fixed_latency_profile(tmp, LATENCY_S)
+    radio = radio_profile(tmp, "fixed_latency", latency_s=LATENCY_S)
     endpoint, prefix = f"tcp/127.0.0.1:{free_port()}", f"r{uuid.uuid4().hex[:8]}"
     emulator = subprocess.Popen([sys.executable, "-m", "link", "emulator", "--listen", endpoint, "--id", prefix,
                                  "--clock", "realtime", "--radio", str(radio), "--quiet"],
