@@ -19,15 +19,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import re
-import subprocess
-import sys
 import tempfile
 import timeit
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+from git_baseline import baseline_modules  # benchmarks/, beside this script
 from scipy.spatial.transform import Rotation
 
 from groundstation.controller import ControllerState, SE3Controller, load_gains
@@ -35,7 +33,6 @@ from groundstation.trajectory import FlatOutput
 from link.vehicle import GRAVITY_MPS2, load_vehicle
 
 BUDGET_US = 40.0
-REPO = Path(__file__).resolve().parents[1]
 # The modules under test: loaded from the working tree (candidate) and from the baseline revision.
 MODULES = {
     "controller": "groundstation/controller.py",
@@ -87,23 +84,6 @@ class NumpyReportController:
 
 def candidate_modules() -> dict:
     return {name: importlib.import_module(path[:-3].replace("/", ".")) for name, path in MODULES.items()}
-
-
-def baseline_modules(rev: str, workdir: Path) -> dict:
-    """The modules at git revision `rev`, as package `bench_baseline`, importing each other (not the tree)."""
-    package = workdir / "bench_baseline"
-    package.mkdir()
-    (package / "__init__.py").write_text("")
-    dotted = "|".join(re.escape(path[:-3].replace("/", ".")) for path in MODULES.values())
-    names = {path[:-3].replace("/", "."): name for name, path in MODULES.items()}
-    for name, path in MODULES.items():
-        source = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=REPO, capture_output=True, text=True,
-                                check=True).stdout
-        source = re.sub(rf"\bfrom ({dotted}) import", lambda m: f"from bench_baseline.{names[m[1]]} import",
-                        source)
-        (package / f"{name}.py").write_text(source)
-    sys.path.insert(0, str(workdir))
-    return {name: importlib.import_module(f"bench_baseline.{name}") for name in MODULES}
 
 
 # --- comparing results ----------------------------------------------------------------------------------
@@ -193,10 +173,11 @@ def compensator(mod, vehicle, mode: str, history: list[tuple]):
     return c
 
 
-def mission_in_track(mods, track_of, view_at):
-    """A Mission of module set `mods` driven by views through arm and settle into its TRACK phase."""
+def mission_in_track(mods):
+    """A Mission of module set `mods` flying the built-in circle, driven by views through arm and settle
+    into its TRACK phase."""
     params = mods["mission"].load_mission_params()
-    track = track_of(mods)
+    track = circle_track(mods)
     start = track.sample(0.0).position_m
     m = mods["mission"].Mission(params, track, lambda p: 0.0, track.sample(track.duration_s).position_m)
     t = 0.0
@@ -252,7 +233,7 @@ def main() -> None:
     vehicle, gains = load_vehicle("crazyflie"), load_gains()
     cand = candidate_modules()
     with tempfile.TemporaryDirectory() as tmp:
-        base = baseline_modules(args.baseline, Path(tmp))
+        base = baseline_modules(args.baseline, MODULES, Path(tmp))
         rows = run_comparisons(base, cand, vehicle, gains, repeat, number)
 
     print(f"baseline: git {args.baseline}; candidate: working tree; us per call (min of {repeat} runs)")
@@ -282,7 +263,7 @@ def run_comparisons(base: dict, cand: dict, vehicle, gains, repeat: int, number:
     b, c = (compensator(m, vehicle, "moments", history[:1]) for m in (base["compensation"], cand["compensation"]))
     rows.append(compare("LatencyCompensator.record", b.record, c.record, history, repeat, number))
 
-    b, c = (mission_in_track(m, circle_track, view_at) for m in (base, cand))
+    b, c = (mission_in_track(m) for m in (base, cand))
     start = b.phase_start_s
     times = [start + x for x in np.linspace(0.0, b.track.duration_s - 0.01, 200).tolist()]
     rows.append(compare("Mission.update (TRACK, circle)", b.update, c.update,
@@ -323,7 +304,7 @@ def tick_row(base, cand, vehicle, gains, history, predictions, times, repeat, nu
     a flight); the mission's track time wraps around within its TRACK phase.
     """
     def path_of(mods):
-        mission = mission_in_track(mods, circle_track, view_at)
+        mission = mission_in_track(mods)
         comp = compensator(mods["compensation"], vehicle, "moments", history)
         controller = mods["controller"].SE3Controller(vehicle, gains, "full")
         view = view_at(mods, 0.0, [0.0, 0.0, 1.0])

@@ -29,8 +29,8 @@ import gc
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
-import types
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "estimator"))
 
+from git_baseline import baseline_modules  # noqa: E402 (benchmarks/, beside this script)
 from synthetic import Flight, LinkFaults, simulate  # noqa: E402
 
 from estimator.eskf import ErrorStateKF  # noqa: E402
@@ -57,19 +58,13 @@ BUILD = "est.build"  # estimate() right after a repeated (ignored) IMU sample: b
 COLUMNS = (*CALLS, "tick", BUILD)
 
 
-def load_baseline(commit: str) -> type | None:
+def load_baseline(commit: str, workdir: Path) -> type | None:
     """ErrorStateKF of estimator/eskf.py at `commit`, or None (with the reason printed) without git."""
     try:
-        source = subprocess.run(["git", "show", f"{commit}:estimator/eskf.py"], cwd=ROOT, check=True,
-                                capture_output=True, text=True).stdout
+        return baseline_modules(commit, {"eskf": "estimator/eskf.py"}, workdir)["eskf"].ErrorStateKF
     except (OSError, subprocess.CalledProcessError) as err:
         print(f"baseline {commit[:9]} not readable with git ({err}): candidate only")
         return None
-    module = types.ModuleType("eskf_baseline")
-    module.__file__ = f"<git {commit[:9]}:estimator/eskf.py>"
-    sys.modules[module.__name__] = module  # dataclasses look their module up
-    exec(compile(source, module.__file__, "exec"), module.__dict__)
-    return module.ErrorStateKF
 
 
 def clock_overhead_ns() -> float:
@@ -135,7 +130,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--baseline-commit", default=BASELINE_COMMIT)
     args = parser.parse_args(argv)
     vehicle, room = load_vehicle("crazyflie"), load_mocap_room("vicon")
-    baseline = load_baseline(args.baseline_commit)
+    scratch = tempfile.TemporaryDirectory()  # the baseline's sources, for as long as the run lasts
+    baseline = load_baseline(args.baseline_commit, Path(scratch.name))
     filters = {"candidate": ErrorStateKF} | ({"baseline": baseline} if baseline else {})
     overhead_ns = clock_overhead_ns()
     print(f"estimator bench: {args.seconds:.0f} s synthetic 1 m/s circle per case, IMU {vehicle.imu.rate_hz:.0f} Hz, "
