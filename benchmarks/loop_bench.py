@@ -6,6 +6,11 @@ Prints, from one run:
    mode at 100 Hz).
 2. Realtime: the ground station at 500 Hz with the emulator at 1 kHz beside it for a hover flight: tick
    work time p50/p99, deadline-miss rate, achieved rates of both.
+   Next to each mode, in the same run: the floor of the layout, the lockstep real-time factor of the
+   same emulator (in this process) against a ground station that does no work at all (emulator_bench's
+   responder: it acks each tick and sends one fixed command), at the mode's rate, median of
+   FLOOR_RUNS runs; and the per-tick wall-time budget the target allows. A ground station's own work
+   (estimator, controller, logs) can only add to the floor.
 3. End-to-end latency in that realtime flight: from the sample time of the newest IMU sample a command
    was computed from (states.csv est_time_s) to the moment the vehicle applies that command (its uplink
    frame's delivery by the radio, from the emulator's ledger, then the next 500 Hz firmware tick), all on
@@ -20,7 +25,9 @@ import argparse
 import csv
 import json
 import math
+import os
 import socket
+import statistics
 import subprocess
 import sys
 import time
@@ -28,6 +35,7 @@ import uuid
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
+import emulator_bench  # this folder: the zero-work responder and fly_zenoh (python puts it on sys.path)
 import numpy as np
 
 from link.codec import ActuatorLimits, FrameParser
@@ -38,6 +46,9 @@ from link.vehicle import load_vehicle
 
 WORLDS = Path(__file__).resolve().parents[1].parent / "shared" / "worlds"
 MAZE = "test_lab_1"
+FLOOR_RUNS = 3
+FLOOR_SECONDS = 10.0  # simulated seconds per floor run
+MODES = (("moments", 500.0, 5.0), ("attitude", 100.0, 20.0))  # mode, default rate (Hz), RTF target
 FIRMWARE_RATE_HZ = 500.0  # simulator/params/firmware.toml commander rate: when a delivered setpoint acts
 
 
@@ -53,18 +64,38 @@ def lockstep_table(tmp: Path, quick: bool) -> None:
     print("\n1. Lockstep real-time factor over zenoh (crazyradio profile)")
     print("   RTF = simulated s / wall s of the flight loop (first tick to last); whole = the same over the")
     print("   whole `cfstack fly` session, which also waits for the emulator child to boot")
-    print(f"{'flight':28} {'mode':9} {'sim (s)':>8} {'loop (s)':>8} {'RTF':>6} {'whole':>6} {'target':>7} "
-          f"{'result':>13}")
+    print(f"{'flight':28} {'mode':9} {'sim (s)':>8} {'loop (s)':>8} {'RTF':>6} {'whole':>6} {'us/tick':>8} "
+          f"{'target':>7} {'result':>13}")
     flights = [("20 s circle", ["fly", "--trajectory", "circle"])]
     if WORLDS.is_dir() and not quick:
         flights.append((f"maze {MAZE}", ["fly", str(WORLDS / f"{MAZE}.json")]))
     for name, args in flights:
-        for mode, target in (("moments", 5.0), ("attitude", 20.0)):
+        for mode, _, target in MODES:
             s = cfstack(*args, "--mode", mode, "--log", str(tmp / f"{name.replace(' ', '_')}_{mode}"))
-            rtf = s["timing"]["real_time_factor"]
+            timing = s["timing"]
+            rtf = timing["real_time_factor"]
             whole = s["sim_time_s"] / s["wall_time_s"]
-            print(f"{name:28} {mode:9} {s['sim_time_s']:8.2f} {s['timing']['loop_wall_s']:8.2f} {rtf:6.1f} "
-                  f"{whole:6.1f} {target:7.0f} {s['result']:>13} {'PASS' if rtf >= target else 'MISS'}")
+            us_per_tick = timing["loop_wall_s"] / timing["ticks"] * 1e6
+            print(f"{name:28} {mode:9} {s['sim_time_s']:8.2f} {timing['loop_wall_s']:8.2f} {rtf:6.1f} "
+                  f"{whole:6.1f} {us_per_tick:8.0f} {target:7.0f} {s['result']:>13} "
+                  f"{'PASS' if rtf >= target else 'MISS'}")
+    print_floor()
+
+
+def print_floor() -> None:
+    """The layout's floor per mode: the emulator against a ground station that does no work."""
+    print(f"   floor: the emulator against a zero-work ground station (emulator_bench responder), "
+          f"median of {FLOOR_RUNS} runs of {FLOOR_SECONDS:g} s simulated; load average {os.getloadavg()[0]:.1f}")
+    for mode, rate_hz, target in MODES:
+        period_s = 1.0 / rate_hz
+        runs = [emulator_bench.fly_zenoh("crazyradio", FLOOR_SECONDS, period_s, True, 0, profile=False)
+                for _ in range(FLOOR_RUNS)]
+        rtfs = [r["rtf"] for r in runs]
+        floor_us = period_s / statistics.median(rtfs) * 1e6
+        budget_us = period_s / target * 1e6
+        print(f"   {mode:9} at {rate_hz:3.0f} Hz: floor {statistics.median(rtfs):5.1f}x ({floor_us:4.0f} us/tick; "
+              f"runs {', '.join(f'{x:.1f}x' for x in rtfs)}); the {target:.0f}x target allows {budget_us:4.0f} "
+              f"us/tick: {budget_us - floor_us:+4.0f} us/tick beyond the floor for the ground station's work")
 
 
 def realtime_flight(tmp: Path) -> tuple[dict, Path, dict, str]:
