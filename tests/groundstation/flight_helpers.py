@@ -4,10 +4,11 @@ Imported by tests in this folder (sys.path), like trajectory_checks and referenc
 
 from __future__ import annotations
 
-import json
 import socket
 import tomllib
 from pathlib import Path
+
+from groundstation.sweep import dump_toml
 
 RADIO_DIR = Path(__file__).resolve().parents[2] / "simulator" / "params" / "radio"
 
@@ -31,21 +32,6 @@ def radio_profile(folder: Path, name: str, latency_s: float = 0.0, loss: float =
     data["loss"]["probability"] = loss
     data["burst"].update(p_good_to_bad=p_gb, p_bad_to_good=p_bg, loss_good=loss_good, loss_bad=loss_bad)
     path = folder / f"{name}.toml"
-    path.write_text(_toml(data))
+    path.write_text(dump_toml(data))
     return path
 
-
-def _toml(data: dict) -> str:
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return json.dumps(v)
-        return repr(v)
-
-    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    for section, table in data.items():
-        if isinstance(table, dict):
-            lines.append(f"\n[{section}]")
-            lines += [f"{k} = {value(v)}" for k, v in table.items()]
-    return "\n".join(lines) + "\n"
