@@ -301,11 +301,14 @@ class ZenohTransport(Transport):
                 if waker.woke(sample, number):
                     return []
                 # else: a stale wake, another transport's wake on an overlapping key, a remote DELETE
-            following = handler.try_recv()
         except zenoh.ZError:  # closed meanwhile: the subscriber (or its session) is gone
             return []
         finally:
             waker._wait = None  # disarm (see _Waker): a wake already on its way is stale
+        try:
+            following = handler.try_recv()
+        except zenoh.ZError:  # closed right after recv(): the frame taken is still delivered
+            return [frame]
         if following is None:
             return [frame]
         frames = [frame]
