@@ -139,10 +139,11 @@ def main(argv: list[str] | None = None) -> None:
           f"(clock overhead {1e-3 * overhead_ns:.2f} us subtracted; baseline = {args.baseline_commit[:9]})")
     header = f"{'mode / case':40s} {'filter':10s}" + "".join(f"{k:>11s}" for k in COLUMNS)
     print(header)
+    flights = {label: simulate(Flight(duration_s=args.seconds), vehicle.imu, room, np.random.default_rng(7), faults)
+            for label, faults in CASES}  # the same flights serve every mode
     for mode, imu_per_tick in IMU_SAMPLES_PER_TICK.items():
         tick_s = imu_per_tick / vehicle.imu.rate_hz
-        for label, faults in CASES:
-            run = simulate(Flight(duration_s=args.seconds), vehicle.imu, room, np.random.default_rng(7), faults)
+        for label, run in flights.items():
             results: dict[str, list[dict[str, float]]] = {name: [] for name in filters}
             finals = {}
             for _ in range(args.repeats):
