@@ -16,9 +16,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-import numpy as np
-
-from groundstation.controller import ControllerState
+from groundstation.controller import ControllerState, as_floats
 from link.vehicle import GRAVITY_MPS2, Vehicle
 
 HISTORY_S = 1.0  # commands kept: longer than any round trip a flyable link has
@@ -55,10 +53,10 @@ class LatencyCompensator:
         """
         t = est.time_s - vehicle_minus_ground_s  # the estimate's time on our clock
         t_act = now_s + uplink_latency_s
-        px, py, pz = _floats(est.position_enu_m)
-        vx, vy, vz = _floats(est.velocity_enu_mps)
-        q = _floats(est.attitude_wxyz)
-        w = _floats(est.rate_flu_radps)
+        px, py, pz = as_floats(est.position_enu_m)
+        vx, vy, vz = as_floats(est.velocity_enu_mps)
+        q = as_floats(est.attitude_wxyz)
+        w = as_floats(est.rate_flu_radps)
         acting, pending = self._acting_and_pending(t, uplink_latency_s)
         attitude_mode = self.mode == "attitude"
         step_s, m = self.step_s, self.m
@@ -113,11 +111,6 @@ class LatencyCompensator:
         return (wx + dt * (mx - (iz - iy) * wy * wz) / ix,
                 wy + dt * (my - (ix - iz) * wz * wx) / iy,
                 wz + dt * (mz - (iy - ix) * wx * wy) / iz)
-
-
-def _floats(v):
-    """A vector as a tuple or list of Python floats (numpy scalars make float arithmetic slower)."""
-    return v.tolist() if type(v) is np.ndarray else [float(x) for x in v]
 
 
 def _integrate_quat(q, w, dt: float):

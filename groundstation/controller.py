@@ -128,7 +128,7 @@ class ControlOutput:
         return self.thrust_saturated or any(self.moment_saturated)
 
 
-def _floats(v):
+def as_floats(v):
     """A 3- or 4-vector as Python floats (numpy scalars make float arithmetic several times slower)."""
     return v.tolist() if type(v) is np.ndarray else v
 
@@ -162,11 +162,11 @@ class SE3Controller:
         """One control step: thrust, moment and desired attitude for the current state and reference."""
         m = self.mass_kg
         kpx, kpy, kpz, kdx, kdy, kdz = self._position_gains
-        px, py, pz = _floats(state.position_enu_m)
-        vx, vy, vz = _floats(state.velocity_enu_mps)
-        tx, ty, tz = _floats(ref.position_m)
-        tvx, tvy, tvz = _floats(ref.velocity_mps)
-        tax, tay, taz = _floats(ref.acceleration_mps2)
+        px, py, pz = as_floats(state.position_enu_m)
+        vx, vy, vz = as_floats(state.velocity_enu_mps)
+        tx, ty, tz = as_floats(ref.position_m)
+        tvx, tvy, tvz = as_floats(ref.velocity_mps)
+        tax, tay, taz = as_floats(ref.acceleration_mps2)
 
         # Position loop: F_des = m (r_T'' - K_d e_v - K_p e_p) + m g e3.
         epx, epy, epz = px - tx, py - ty, pz - tz
@@ -175,7 +175,7 @@ class SE3Controller:
         fy = m * (tay - kdy * evy - kpy * epy)
         fz = m * (taz - kdz * evz - kpz * epz + GRAVITY_MPS2)
 
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rows(*_floats(state.attitude_wxyz))
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rows(*as_floats(state.attitude_wxyz))
         thrust = r02 * fx + r12 * fy + r22 * fz  # u1 = (R e3) . F_des
 
         # Desired body axes.
@@ -206,7 +206,7 @@ class SE3Controller:
         m21 = b3x * r01 + b3y * r11 + b3z * r21
         erx, ery, erz = 0.5 * (m21 - m12), 0.5 * (m02 - m20), 0.5 * (m10 - m01)
 
-        wx, wy, wz = _floats(state.rate_flu_radps)
+        wx, wy, wz = as_floats(state.rate_flu_radps)
         krx, kry, krz, kwx, kwy, kwz = self._attitude_gains
         i00, i01, i02, i10, i11, i12, i20, i21, i22 = self._inertia
         if self._full and f_norm > _DEGENERATE_NORM and heading_norm > _DEGENERATE_NORM:
@@ -253,8 +253,8 @@ class SE3Controller:
         a' = psi' e3 x a and b3' . b2 = -w_x; w_z' follows by the quotient rule (psi'' = 0).
         `heading` is (cos psi, sin psi, n).
         """
-        jx, jy, jz = _floats(ref.jerk_mps3)
-        sx, sy, sz = _floats(ref.snap_mps4)
+        jx, jy, jz = as_floats(ref.jerk_mps3)
+        sx, sy, sz = as_floats(ref.snap_mps4)
         psi_rate = ref.yaw_rate_radps
         b1x, b1y, b1z = b1
         b2x, b2y, b2z = b2

@@ -18,6 +18,7 @@ from enum import Enum
 import numpy as np
 
 from groundstation.trajectories.basic import Hover, Line
+from groundstation.trajectories.flat import at_rest
 from groundstation.trajectory import FlatOutput, Trajectory
 from link.config import Params, resolve
 from link.messages import CommandKind
@@ -207,7 +208,7 @@ class Mission:
         return MissionStep(self.phase, None)
 
     def _arm(self, t: float, view: VehicleView) -> MissionStep:
-        hold = FlatOutput(position_m=view.position_enu_m.copy())
+        hold = at_rest(view.position_enu_m)
         if view.armed:
             start = self.track.sample(0.0).position_m
             if np.linalg.norm(view.position_enu_m - start) > self.p.goal_position_tolerance_m:
