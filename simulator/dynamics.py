@@ -237,6 +237,7 @@ class QuadrotorDynamics:
         self.t_s = n * self.dt_s
         if self.crash is not None:
             return None
+        thrust_start = self._thrust_n  # the floor test goes by the thrust at the step's start
         u0 = um = u1 = self._u
         if self._lag:
             w0, cmd = self._w, self._w_cmd
@@ -244,16 +245,13 @@ class QuadrotorDynamics:
             w_end = [c + (w - c) * df for w, c in zip(w0, cmd, strict=True)]
             if w_end != w0:
                 um = self._inputs_for([c + (w - c) * dh for w, c in zip(w0, cmd, strict=True)])[1]
-                thrust_end, u1 = self._inputs_for(w_end)
+                self._thrust_n, u1 = self._inputs_for(w_end)
+                self._w, self._u = w_end, u1  # the step's end state (_rk4 takes u0, um, u1 as arguments)
         if self.on_ground:
-            if self._thrust_n <= self._weight:  # the floor holds it: no sinking, no sliding, stays level
-                if u1 is not u0:
-                    self._w, self._thrust_n, self._u = w_end, thrust_end, u1
+            if thrust_start <= self._weight:  # the floor holds it: no sinking, no sliding, stays level
                 return None
             self.on_ground = False
         x = self._x = self._rk4(self._x, u0, um, u1)
-        if u1 is not u0:
-            self._w, self._thrust_n, self._u = w_end, thrust_end, u1
         if self._open_space and x[2] >= self.floor_z_m:
             return None  # no world, above the floor: nothing to meet
         return self._check_world(self.t_s)

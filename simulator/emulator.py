@@ -478,8 +478,6 @@ class Emulator:
         self.duration_steps = (None if config.duration_s is None
                                else max(1, math.ceil(config.duration_s / self.dt_s - 0.5)))
         self._last_progress = time.monotonic()
-        self._next_tick_key: tuple[int, int] | None = None  # next_tick_steps' last question and answer
-        self._next_tick_value = 0
 
     @property
     def t_s(self) -> float:
@@ -679,16 +677,12 @@ class Emulator:
     def next_tick_steps(self, target_ns: int) -> int:
         """The step count of the next tick: the first step boundary at or after target_ns (never
         before the last tick), capped at the duration."""
-        key = (target_ns, self.tick_steps)
-        if key == self._next_tick_key:  # asked again and again while a tick is being reached
-            return self._next_tick_value
         dt_ns = self.dt_s * NS_PER_S
         n = max(self.tick_steps, math.floor(target_ns / dt_ns) - 1)
         while round(n * self.dt_s * NS_PER_S) < target_ns:
             n += 1
         if self.duration_steps is not None:
             n = min(n, max(self.duration_steps, self.tick_steps))
-        self._next_tick_key, self._next_tick_value = key, n
         return n
 
     def publish_tick(self, lock: _Lockstep, n: int) -> None:

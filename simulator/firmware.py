@@ -192,7 +192,6 @@ class Firmware:
         self._shutdown_timeout_s = params.watchdog_shutdown_timeout_s
         self._watchdog_from_s = min(self._level_timeout_s, self._shutdown_timeout_s)  # one test while fresh
         self._moment_speeds: tuple[float, ...] | None = None  # the mix of the ThrustMoment setpoint, once made
-        self._level_attitude: Quat = (1.0, 0.0, 0.0, 0.0)
         self._energy_total_j = (vehicle.battery_capacity_mah * 3.6
                                 * 0.5 * (vehicle.battery_full_v + vehicle.battery_empty_v))
         self.energy_used_j = 0.0
@@ -327,8 +326,7 @@ class Firmware:
             if self.mode != VehicleMode.LEVEL:
                 self.mode = VehicleMode.LEVEL
                 self._held_yaw_rad = yaw_of(body.attitude_wxyz)
-                self._level_attitude = quat_from_yaw(self._held_yaw_rad)
-            return self._follow_attitude(self._sp_thrust_n, self._level_attitude, (0.0, 0.0, 0.0), body)
+            return self._follow_attitude(self._sp_thrust_n, quat_from_yaw(self._held_yaw_rad), (0.0, 0.0, 0.0), body)
         if self.mode == VehicleMode.ATTITUDE:
             return self._follow_attitude(self._sp_thrust_n, self._sp_attitude, self._sp_rates, body)
         # MOMENTS, or IDLE-armed at zero: the same rotor speeds until the setpoint changes

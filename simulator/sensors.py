@@ -42,12 +42,12 @@ class ImuModel:
         self.period_s = 1.0 / noise.rate_hz
         root_rate = math.sqrt(noise.rate_hz)
         root_dt = math.sqrt(self.period_s)
-        self.accel_white_sigma = noise.accel_noise_density * root_rate  # m/s^2 per sample
-        self.gyro_white_sigma = noise.gyro_noise_density * root_rate  # rad/s per sample
-        self.accel_walk_sigma = noise.accel_bias_random_walk * root_dt  # m/s^2 per sample step
-        self.gyro_walk_sigma = noise.gyro_bias_random_walk * root_dt  # rad/s per sample step
-        self._white = np.array([self.accel_white_sigma] * 3 + [self.gyro_white_sigma] * 3)
-        self._walk = np.array([self.accel_walk_sigma] * 3 + [self.gyro_walk_sigma] * 3)
+        accel_white_sigma = noise.accel_noise_density * root_rate  # m/s^2 per sample
+        gyro_white_sigma = noise.gyro_noise_density * root_rate  # rad/s per sample
+        accel_walk_sigma = noise.accel_bias_random_walk * root_dt  # m/s^2 per sample step
+        gyro_walk_sigma = noise.gyro_bias_random_walk * root_dt  # rad/s per sample step
+        self._white = np.array([accel_white_sigma] * 3 + [gyro_white_sigma] * 3)
+        self._walk = np.array([accel_walk_sigma] * 3 + [gyro_walk_sigma] * 3)
         # b_0: accel then gyro; later, the bias of the first sample after the drawn rows
         self._bias_next = np.concatenate([rng.standard_normal(3) * noise.accel_bias_initial_sigma,
                                           rng.standard_normal(3) * noise.gyro_bias_initial_sigma])
@@ -59,11 +59,6 @@ class ImuModel:
     def accel_bias(self) -> list[float]:
         """The accelerometer bias b_k (m/s^2, FLU) of the next sample."""
         return self._peek()[0:3]
-
-    @property
-    def gyro_bias(self) -> list[float]:
-        """The gyro bias b_k (rad/s, FLU) of the next sample."""
-        return self._peek()[3:6]
 
     def sample(self, t_s: float, specific_force_flu_mps2: Vec3, rate_flu_radps: Vec3) -> ImuSample:
         """One reading at sample time t_s; then the biases take one random-walk step."""
