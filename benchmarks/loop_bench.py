@@ -4,13 +4,13 @@ Prints, from one run:
 1. Lockstep real-time factor (simulated / wall seconds) of a 20 s circle flight and of a full lab-maze
    flight over zenoh, in each command mode (targets: >= 5x in moments mode at 500 Hz, >= 20x in attitude
    mode at 100 Hz).
-2. Realtime: the ground station at 500 Hz with the emulator at 1 kHz beside it for a hover flight: tick
-   work time p50/p99, deadline-miss rate, achieved rates of both.
    Next to each mode, in the same run: the floor of the layout, the lockstep real-time factor of the
    same emulator (in this process) against a ground station that does no work at all (emulator_bench's
    responder: it acks each tick and sends one fixed command), at the mode's rate, median of
    FLOOR_RUNS runs; and the per-tick wall-time budget the target allows. A ground station's own work
    (estimator, controller, logs) can only add to the floor.
+2. Realtime: the ground station at 500 Hz with the emulator at 1 kHz beside it for a hover flight: tick
+   work time p50/p99, deadline-miss rate, achieved rates of both.
 3. End-to-end latency in that realtime flight: from the sample time of the newest IMU sample a command
    was computed from (states.csv est_time_s) to the moment the vehicle applies that command (its uplink
    frame's delivery by the radio, from the emulator's ledger, then the next 500 Hz firmware tick), all on
@@ -38,6 +38,7 @@ from tempfile import TemporaryDirectory
 import emulator_bench  # this folder: the zero-work responder and fly_zenoh (python puts it on sys.path)
 import numpy as np
 
+from groundstation.session import DEFAULT_RATE_HZ
 from link.codec import ActuatorLimits, FrameParser
 from link.keys import GROUND_STATION_SYSTEM_ID
 from link.messages import ThrustMoment
@@ -48,7 +49,7 @@ WORLDS = Path(__file__).resolve().parents[1].parent / "shared" / "worlds"
 MAZE = "test_lab_1"
 FLOOR_RUNS = 3
 FLOOR_SECONDS = 10.0  # simulated seconds per floor run
-MODES = (("moments", 500.0, 5.0), ("attitude", 100.0, 20.0))  # mode, default rate (Hz), RTF target
+TARGET_RTF = {"moments": 5.0, "attitude": 20.0}  # issue 4's lockstep targets, each at its mode's default rate
 FIRMWARE_RATE_HZ = 500.0  # simulator/params/firmware.toml commander rate: when a delivered setpoint acts
 
 
@@ -70,7 +71,7 @@ def lockstep_table(tmp: Path, quick: bool) -> None:
     if WORLDS.is_dir() and not quick:
         flights.append((f"maze {MAZE}", ["fly", str(WORLDS / f"{MAZE}.json")]))
     for name, args in flights:
-        for mode, _, target in MODES:
+        for mode, target in TARGET_RTF.items():
             s = cfstack(*args, "--mode", mode, "--log", str(tmp / f"{name.replace(' ', '_')}_{mode}"))
             timing = s["timing"]
             rtf = timing["real_time_factor"]
@@ -86,7 +87,8 @@ def print_floor() -> None:
     """The layout's floor per mode: the emulator against a ground station that does no work."""
     print(f"   floor: the emulator against a zero-work ground station (emulator_bench responder), "
           f"median of {FLOOR_RUNS} runs of {FLOOR_SECONDS:g} s simulated; load average {os.getloadavg()[0]:.1f}")
-    for mode, rate_hz, target in MODES:
+    for mode, target in TARGET_RTF.items():
+        rate_hz = DEFAULT_RATE_HZ[mode]
         period_s = 1.0 / rate_hz
         runs = [emulator_bench.fly_zenoh("crazyradio", FLOOR_SECONDS, period_s, True, 0, profile=False)
                 for _ in range(FLOOR_RUNS)]
