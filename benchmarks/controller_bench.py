@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from groundstation.controller import ControllerState, SE3Controller, load_gains
 from groundstation.trajectory import FlatOutput
-from link.vehicle import GRAVITY_MPS2, load_vehicle
+from model.vehicle import GRAVITY_MPS2, load_vehicle
 
 BUDGET_US = 40.0
 # The modules under test: loaded from the working tree (candidate) and from the baseline revision.

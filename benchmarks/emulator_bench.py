@@ -37,13 +37,13 @@ from collections import deque
 from pathlib import Path
 
 from link.clock import NS_PER_S, ClockAck, unpack_tick
-from link.codec import ActuatorLimits, Codec
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.mavlink.codec import ActuatorLimits, Codec
 from link.messages import CommandKind, ThrustMoment, VehicleCommand
 from link.transports import open_transport
-from link.vehicle import load_mocap_room, load_vehicle
+from model.radio import load_radio_profile
+from model.vehicle import load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
-from simulator.radio import load_radio_profile
 
 PHYSICS_RATE_HZ = 1000.0
 SETPOINT_RATE_HZ = 500.0  # in-process scripted setpoints

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from link.messages import ImuSample, ThrustMoment
-from link.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
+from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.dynamics import QuadrotorDynamics
 from simulator.firmware import load_firmware_params
 from simulator.sensors import DRAW_BLOCK, ImuModel

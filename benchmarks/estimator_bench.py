@@ -43,7 +43,7 @@ from synthetic import Flight, LinkFaults, simulate  # noqa: E402
 
 from estimator.eskf import ErrorStateKF  # noqa: E402
 from link.messages import ImuSample  # noqa: E402
-from link.vehicle import load_mocap_room, load_vehicle  # noqa: E402
+from model.vehicle import load_mocap_room, load_vehicle  # noqa: E402
 
 BASELINE_COMMIT = "cab9f57c13bfa3d422a11a3579d289f2ea03d9ed"
 CASES = (

@@ -32,7 +32,7 @@ LAB_CONSTANT_ARGS = ["--trajectory", "constant-speed", "--speed", "1.0"]
 
 
 def fly(world: str, args: list[str], mode: str, log: Path) -> dict:
-    run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / f"{world}.json"), "--mode", mode,
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(WORLDS / f"{world}.json"), "--mode", mode,
                           "--radio", "crazyradio", "--json", "--log", str(log), *args],
                          capture_output=True, text=True, stdin=subprocess.DEVNULL)
     if not run.stdout.strip():

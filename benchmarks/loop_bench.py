@@ -39,11 +39,11 @@ import emulator_bench  # this folder: the zero-work responder and fly_zenoh (pyt
 import numpy as np
 
 from groundstation.session import DEFAULT_RATE_HZ
-from link.codec import ActuatorLimits, FrameParser
 from link.keys import GROUND_STATION_SYSTEM_ID
+from link.mavlink.codec import ActuatorLimits, FrameParser
+from link.mavlink.tlog import read_tlog
 from link.messages import ThrustMoment
-from link.tlog import read_tlog
-from link.vehicle import load_vehicle
+from model.vehicle import load_vehicle
 
 WORLDS = Path(__file__).resolve().parents[1].parent / "shared" / "worlds"
 MAZE = "test_lab_1"
@@ -54,7 +54,7 @@ FIRMWARE_RATE_HZ = 500.0  # simulator/params/firmware.toml commander rate: when 
 
 
 def cfstack(*args: str, timeout: float = 900) -> dict:
-    run = subprocess.run([sys.executable, "-m", "link", *args, "--json"], capture_output=True, text=True,
+    run = subprocess.run([sys.executable, "-m", "cfstack", *args, "--json"], capture_output=True, text=True,
                          timeout=timeout, stdin=subprocess.DEVNULL)
     if not run.stdout.strip():
         raise SystemExit(f"cfstack {' '.join(args)} failed: {run.stderr.strip()[-300:]}")
@@ -104,7 +104,7 @@ def realtime_flight(tmp: Path) -> tuple[dict, Path, dict, str]:
     port = _free_port()
     endpoint, prefix = f"tcp/127.0.0.1:{port}", f"b{uuid.uuid4().hex[:8]}"
     ledger, log = tmp / "ledger.json", tmp / "realtime"
-    emulator = subprocess.Popen([sys.executable, "-m", "link", "emulator", "--listen", endpoint, "--id", prefix,
+    emulator = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--id", prefix,
                                  "--clock", "realtime", "--radio-ledger", str(ledger), "--quiet"],
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                 text=True)
@@ -124,7 +124,7 @@ def end_to_end_ms(log: Path, ledger: dict) -> np.ndarray:
         rows = [r for r in csv.DictReader(f) if r["est_time_s"] and r["cmd_thrust_n"]]
     basis = {round(float(r["t_s"]), 6): float(r["est_time_s"]) for r in rows}
     parser = FrameParser(ActuatorLimits.from_vehicle(load_vehicle()))
-    sent = [d for _, d in read_tlog(log / "link.tlog", parser) if d.system_id == GROUND_STATION_SYSTEM_ID]
+    sent = [d for _, d in read_tlog(log / "link.mavlink.tlog", parser) if d.system_id == GROUND_STATION_SYSTEM_ID]
     fates = ledger["uplink"]["ledger"]
     out = []
     for index, decoded in enumerate(sent[: len(fates)]):

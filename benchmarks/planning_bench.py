@@ -29,8 +29,8 @@ from groundstation.planning import load_planning_params
 from groundstation.planning.astar import _connections, astar
 from groundstation.planning.occupancy import OccupancyGrid
 from groundstation.trajectories.minsnap import MinSnapSettings, min_snap_through, plan_min_snap
-from link.vehicle import load_vehicle
-from link.world import load_world
+from model.vehicle import load_vehicle
+from model.world import load_world
 
 # the library alternative (scipy Dijkstra) lives with the tests, which use it as the oracle
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "groundstation"))

@@ -2,8 +2,8 @@
 
 Takes in: link.messages.ImuSample (sample time on the vehicle clock; specific force FLU m/s^2, reading
 +g on z at rest; angular rate FLU rad/s) and link.messages.MocapPose (SAMPLE time; position ENU m;
-attitude wxyz body FLU -> world ENU), in any arrival order. Noise densities from link.vehicle.Vehicle.imu
-and link.vehicle.MocapRoom; tuning from estimator/params/eskf.toml (`EskfParams`).
+attitude wxyz body FLU -> world ENU), in any arrival order. Noise densities from model.vehicle.Vehicle.imu
+and model.vehicle.MocapRoom; tuning from estimator/params/eskf.toml (`EskfParams`).
 Gives out: `Estimate` (position ENU m, velocity ENU m/s, attitude wxyz, bias-corrected body rate FLU
 rad/s, accelerometer and gyro biases, 15x15 error covariance and its standard deviations, health).
 
@@ -11,7 +11,7 @@ State. Nominal x = (p, v, q, b_a, b_g); error dx = (dp, dv, dtheta, db_a, db_g) 
 see ERROR_STATE_LABELS) with the local attitude error q_true = q (x) Exp(dtheta) (body frame).
 Nominal propagation over an IMU interval [t0, t1], dt = t1 - t0, trapezoidal in the two samples:
     w = (w0 + w1)/2 - b_g,                  q1 = q0 (x) Exp(w dt)
-    a_k = R(q_k) (f_k - b_a) - g e3,       a = (a_0 + a_1)/2       (g = link.vehicle.GRAVITY_MPS2)
+    a_k = R(q_k) (f_k - b_a) - g e3,       a = (a_0 + a_1)/2       (g = model.vehicle.GRAVITY_MPS2)
     p1 = p0 + v0 dt + a dt^2/2,             v1 = v0 + a dt,         biases constant.
 Error transition, first order (Sola 2017 eq. 269), f = (f0 + f1)/2 - b_a, R = R(q0):
     F = I + dt A + dt^2/2 (dp rows):  dp <- dv: I;  dv <- dtheta: -R[f]x;  dv <- db_a: -R;
@@ -79,11 +79,18 @@ from filterpy.kalman import predict as filterpy_predict
 from scipy.linalg.lapack import dgesv as lapack_gesv
 from scipy.stats import chi2
 
-from estimator.rotation import attitude_error, quat_exp, quat_multiply, quat_normalise, quat_to_matrix, rotate
-from link.config import Params, resolve
-from link.errors import UserError
 from link.messages import ImuSample, MocapPose
-from link.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
+from model.config import Params, resolve
+from model.errors import UserError
+from model.frames import (
+    attitude_error,
+    quat_exp,
+    quat_multiply,
+    quat_normalize_positive_w,
+    quat_to_rows,
+    rotate,
+)
+from model.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
 
 ERROR_STATE_LABELS = (
     "position_e_m", "position_n_m", "position_u_m",
@@ -284,7 +291,7 @@ class ErrorStateKF:
         self._reset_bookkeeping()
         node = _Node(float(pose.time_s), _MOCAP, status=_INIT)
         node.x = (*map(float, pose.position_enu_m), 0.0, 0.0, 0.0,
-                  *quat_normalise(tuple(map(float, pose.attitude_wxyz))), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                  *quat_normalize_positive_w(tuple(map(float, pose.attitude_wxyz))), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         node.P = np.diag(self._P0_diag)
         self._nodes = [node]
         self._times = [node.time_s]
@@ -333,7 +340,7 @@ class ErrorStateKF:
             self._count["duplicate_mocap"] += 1
             return False
         node = _Node(t, _MOCAP, position=tuple(map(float, pose.position_enu_m)),
-                     attitude=quat_normalise(tuple(map(float, pose.attitude_wxyz))))
+                     attitude=quat_normalize_positive_w(tuple(map(float, pose.attitude_wxyz))))
         if t > self._times[-1]:
             self._queue_future_mocap(node)
             return True  # queued: decided when the IMU stream reaches its sample time
@@ -407,7 +414,7 @@ class ErrorStateKF:
         self._waiting_poses = []
         for pose in later:
             self._queue_future_mocap(_Node(float(pose.time_s), _MOCAP, position=tuple(map(float, pose.position_enu_m)),
-                                           attitude=quat_normalise(tuple(map(float, pose.attitude_wxyz)))))
+                                           attitude=quat_normalize_positive_w(tuple(map(float, pose.attitude_wxyz)))))
         return True
 
     def _reset_bookkeeping(self) -> None:
@@ -624,7 +631,7 @@ class ErrorStateKF:
         kf = self._kf
         dx = kf.x[:, 0].tolist()
         kf.x = self._zero_dx
-        q = quat_normalise(quat_multiply(x[6:10], quat_exp(dx[6], dx[7], dx[8])))
+        q = quat_normalize_positive_w(quat_multiply(x[6:10], quat_exp(dx[6], dx[7], dx[8])))
         x_new = (x[0] + dx[0], x[1] + dx[1], x[2] + dx[2], x[3] + dx[3], x[4] + dx[4], x[5] + dx[5], *q,
                  x[10] + dx[9], x[11] + dx[10], x[12] + dx[11], x[13] + dx[12], x[14] + dx[13], x[15] + dx[14])
         hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
@@ -682,10 +689,10 @@ class ErrorStateKF:
         wy = 0.5 * (w0[1] + w1[1]) - bgy
         wz = 0.5 * (w0[2] + w1[2]) - bgz
         q0 = (qw, qx, qy, qz)
-        r0 = quat_to_matrix(q0)
-        q1 = quat_normalise(quat_multiply(q0, quat_exp(wx * dt, wy * dt, wz * dt)))
+        r0 = quat_to_rows(q0)
+        q1 = quat_normalize_positive_w(quat_multiply(q0, quat_exp(wx * dt, wy * dt, wz * dt)))
         a0 = rotate(r0, f0[0] - bax, f0[1] - bay, f0[2] - baz)
-        a1 = rotate(quat_to_matrix(q1), f1[0] - bax, f1[1] - bay, f1[2] - baz)
+        a1 = rotate(quat_to_rows(q1), f1[0] - bax, f1[1] - bay, f1[2] - baz)
         ax = 0.5 * (a0[0] + a1[0])
         ay = 0.5 * (a0[1] + a1[1])
         az = 0.5 * (a0[2] + a1[2]) - self._g

@@ -27,12 +27,12 @@ from groundstation.planned import plan_track
 from groundstation.session import SessionOptions, dump_json, human_summary, run_session
 from groundstation.step_analysis import analyze_step, plot_step
 from groundstation.trajectories.basic import Step, load_trajectory_params, make_builtin
-from link.errors import UserError
 from link.keys import DEFAULT_PREFIX
-from link.signing import add_signing_arguments, signing_from_args
-from link.vehicle import load_vehicle
-from link.world import World, load_world
-from link.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
+from link.mavlink.signing import add_signing_arguments, signing_from_args
+from link.transports.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
+from model.errors import UserError
+from model.vehicle import load_vehicle
+from model.world import World, load_world
 
 log = logging.getLogger("cfstack.groundstation")
 BUILTIN_TRAJECTORIES = ("hover", "line", "circle")
@@ -164,7 +164,7 @@ class EmulatorChild:
     def __init__(self, args, world_path: str | None, airborne: bool, clock: str):
         port = _free_port()
         self.endpoint = f"tcp/127.0.0.1:{port}"
-        cmd = [sys.executable, "-m", "link", "emulator", "--listen", self.endpoint, "--clock", clock,
+        cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
                "--radio", args.radio, "--seed", str(args.seed), "--id", args.prefix,
                "--vehicle-model", args.vehicle_model, "--quiet"]
         if world_path:

@@ -16,7 +16,7 @@ from collections import deque
 import numpy as np
 
 from link.clock import NS_PER_S, ClockAck, unpack_tick
-from link.errors import UserError
+from model.errors import UserError
 
 log = logging.getLogger("cfstack.groundstation")
 

@@ -12,12 +12,12 @@ commanded attitude as soon as a command acts (its bandwidth, ~20 rad/s, is far a
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass
 
 from groundstation.controller import ControllerState, as_floats
-from link.vehicle import GRAVITY_MPS2, Vehicle
+from model.frames import quat_integrate
+from model.vehicle import GRAVITY_MPS2, Vehicle
 
 HISTORY_S = 1.0  # commands kept: longer than any round trip a flyable link has
 
@@ -75,7 +75,7 @@ class LatencyCompensator:
                 w = (0.0, 0.0, 0.0)
             else:
                 w = self._rate_step(w, acting.moment_flu_nm, dt)
-                q = _integrate_quat(q, w, dt)
+                q = quat_integrate(q, w, dt)
             qw, qx, qy, qz = q
             f = acting.thrust_n / m  # thrust acceleration along b3 = R e3
             ax = f * (2.0 * (qx * qz + qw * qy))
@@ -111,20 +111,3 @@ class LatencyCompensator:
         return (wx + dt * (mx - (iz - iy) * wy * wz) / ix,
                 wy + dt * (my - (ix - iz) * wz * wx) / iy,
                 wz + dt * (mz - (iy - ix) * wx * wy) / iz)
-
-
-def _integrate_quat(q, w, dt: float):
-    """q (x) exp(w dt / 2): the exact rotation for a rate held over dt."""
-    wx, wy, wz = w
-    angle = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
-    if angle < 1e-12:
-        return q
-    s = math.sin(angle / 2.0) / (angle / dt)
-    dw, dx, dy, dz = math.cos(angle / 2.0), wx * s, wy * s, wz * s
-    qw, qx, qy, qz = q
-    ow = qw * dw - qx * dx - qy * dy - qz * dz
-    ox = qw * dx + qx * dw + qy * dz - qz * dy
-    oy = qw * dy - qx * dz + qy * dw + qz * dx
-    oz = qw * dz + qx * dy - qy * dx + qz * dw
-    n = math.sqrt(ow * ow + ox * ox + oy * oy + oz * oz)
-    return (ow / n, ox / n, oy / n, oz / n)

@@ -3,7 +3,7 @@
 Takes in: the vehicle's state (position/velocity world ENU, attitude quaternion (w, x, y, z) body FLU ->
 world ENU, body rates FLU) and a reference FlatOutput (position, velocity, acceleration, jerk, snap,
 yaw, yaw rate); gains from a gains TOML (groundstation/params/gains.toml) and the vehicle model
-(mass, inertia, thrust and moment limits) from link.vehicle.
+(mass, inertia, thrust and moment limits) from model.vehicle.
 Gives out: a ControlOutput: collective thrust u1 (N) clipped to [0, max thrust], body moment u2 (N m, FLU)
 clipped per axis to +-max moment (with saturation flags), the desired attitude R_des as a quaternion, the
 desired body rate, and the errors for logging.
@@ -43,11 +43,11 @@ from pathlib import Path
 
 import numpy as np
 
-from groundstation.rotation import quat_to_rows, rows_to_quat
 from groundstation.trajectory import FlatOutput
-from link.config import Params, resolve
-from link.errors import ConfigError
-from link.vehicle import GRAVITY_MPS2, Vehicle
+from model.config import Params, resolve
+from model.errors import ConfigError
+from model.frames import quat_normalize, quat_to_rows, rows_to_quat
+from model.vehicle import GRAVITY_MPS2, Vehicle
 
 VARIANTS = ("report", "full")
 
@@ -175,7 +175,7 @@ class SE3Controller:
         fy = m * (tay - kdy * evy - kpy * epy)
         fz = m * (taz - kdz * evz - kpz * epz + GRAVITY_MPS2)
 
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rows(*as_floats(state.attitude_wxyz))
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rows(quat_normalize(as_floats(state.attitude_wxyz)))
         thrust = r02 * fx + r12 * fy + r22 * fz  # u1 = (R e3) . F_des
 
         # Desired body axes.

@@ -66,7 +66,7 @@ class FlightLog:
 
     @property
     def tlog_path(self) -> Path:
-        return self.folder / "link.tlog"
+        return self.folder / "link.mavlink.tlog"
 
     def _flush(self) -> None:
         """Hand the rows written so far to the OS (and to the disk with CFSTACK_FSYNC set)."""

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from link.errors import UserError
+from model.errors import UserError
 
 STATES_FILE = "states.csv"
 SUMMARY_FILE = "summary.json"

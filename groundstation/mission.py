@@ -20,8 +20,8 @@ import numpy as np
 from groundstation.trajectories.basic import Hover, Line
 from groundstation.trajectories.flat import at_rest
 from groundstation.trajectory import FlatOutput, Trajectory
-from link.config import Params, resolve
 from link.messages import CommandKind
+from model.config import Params, resolve
 
 COMMAND_REPEAT_S = 0.25  # arm/land commands are repeated this often until the vehicle reports them done
 

@@ -22,8 +22,8 @@ import numpy as np
 from groundstation.planning import load_planning_params
 from groundstation.planning.astar import PathResult, plan_path
 from groundstation.planning.pruning import prune_path
-from link.errors import UserError
-from link.world import World, load_world
+from model.errors import UserError
+from model.world import World, load_world
 
 
 class _Parser(argparse.ArgumentParser):

@@ -19,9 +19,9 @@ from groundstation.planning.astar import plan_path
 from groundstation.trajectories.constant_speed import ConstantSpeedSettings, ConstantSpeedTrajectory, downsample_path
 from groundstation.trajectories.minsnap import MinSnapSettings, plan_min_snap
 from groundstation.trajectory import Trajectory
-from link.errors import UserError
-from link.vehicle import Vehicle
-from link.world import World
+from model.errors import UserError
+from model.vehicle import Vehicle
+from model.world import World
 
 KINDS = ("constant-speed", "minsnap")
 

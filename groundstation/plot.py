@@ -21,11 +21,11 @@ from matplotlib import colors as mcolors
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-from scipy.spatial.transform import Rotation
 
 from groundstation.logread import FlightLog, read_log
-from link.errors import UserError, WorldError
-from link.world import World, load_world
+from model.errors import UserError, WorldError
+from model.frames import roll_pitch_yaw_deg
+from model.world import World, load_world
 
 AXES = "xyz"
 AXIS_COLORS = ("tab:red", "tab:green", "tab:blue")  # x, y, z: the usual RGB axis convention
@@ -190,7 +190,7 @@ def plot_commands(log: FlightLog) -> Figure:
                                   AXIS_COLORS[i])
         ax_second.set_ylabel("moment u2 (N m)")
     else:
-        angles_deg = _quat_to_roll_pitch_yaw_deg(log.vec("cmd_qw", "cmd_qx", "cmd_qy", "cmd_qz"))
+        angles_deg = roll_pitch_yaw_deg(log.vec("cmd_qw", "cmd_qx", "cmd_qy", "cmd_qz"))
         for i, name in enumerate(("roll", "pitch", "yaw")):
             _plot_with_saturation(ax_second, log.t_s, angles_deg[:, i], saturated, f"{name} command",
                                   AXIS_COLORS[i])
@@ -372,17 +372,6 @@ def windowed_rate(t_s: np.ndarray, counter: np.ndarray, window_s: float) -> np.n
     with np.errstate(invalid="ignore", divide="ignore"):
         rate[known] = np.where(elapsed > 0, (c - c[start]) / elapsed, np.nan)
     return rate
-
-
-def _quat_to_roll_pitch_yaw_deg(q_wxyz: np.ndarray) -> np.ndarray:
-    """(N, 4) quaternions (w, x, y, z) -> (N, 3) roll, pitch, yaw (deg, ZYX convention); NaN rows kept NaN."""
-    out = np.full((len(q_wxyz), 3), np.nan)
-    norm = np.linalg.norm(q_wxyz, axis=1)
-    ok = np.isfinite(norm) & (norm > 0)
-    if ok.any():
-        yaw_pitch_roll = Rotation.from_quat(q_wxyz[ok], scalar_first=True).as_euler("ZYX", degrees=True)
-        out[ok] = yaw_pitch_roll[:, ::-1]
-    return out
 
 
 def _plot_with_saturation(ax, t, values, saturated, label, color) -> None:

@@ -25,11 +25,11 @@ from groundstation.flightlog import FlightLog, default_log_dir
 from groundstation.mission import Mission, load_mission_params
 from groundstation.trajectory import Trajectory
 from groundstation.vehicle_link import VehicleLink
-from link.codec import ActuatorLimits
 from link.keys import VehicleKeys
+from link.mavlink.codec import ActuatorLimits
 from link.transports import open_transport
-from link.vehicle import load_mocap_room, load_vehicle
-from link.world import World
+from model.vehicle import load_mocap_room, load_vehicle
+from model.world import World
 
 log = logging.getLogger("cfstack.groundstation")
 

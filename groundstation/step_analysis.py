@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from link.errors import UserError
+from model.errors import UserError
 
 DEFAULT_SETTLING_BAND = 0.05  # fraction of the step (y_ss - y0); the report's Fig. 1 band
 DEFAULT_TAIL_FRACTION = 0.2  # last fifth of the post-step record is the steady state

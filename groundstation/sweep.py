@@ -41,7 +41,6 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from importlib.util import find_spec
 from pathlib import Path
 
 import numpy as np
@@ -52,9 +51,10 @@ from matplotlib.colors import LogNorm, Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch, Rectangle
 
-from link.config import Params
-from link.errors import ConfigError, UserError
-from link.world import load_world
+from model.config import Params
+from model.errors import ConfigError, UserError
+from model.radio import radio_profile_path
+from model.world import load_world
 
 MODES = ("moments", "attitude")
 REPORT_LOSSES_PCT = (0.0, 20.0)  # the issue asks for the survived latency at these losses
@@ -207,26 +207,6 @@ def parse_options(argv: Sequence[str]) -> SweepOptions:
 # ------------------------------------------------------------------------------------------------
 # Radio profiles
 # ------------------------------------------------------------------------------------------------
-
-
-def base_profile_path(name_or_path: str) -> Path:
-    """A TOML path as given, or the shipped simulator/params/radio/NAME.toml.
-
-    The ground station never imports the simulator (house rule): find_spec locates the top-level
-    package's folder without running its code, and the profile is only data.
-    """
-    candidate = Path(name_or_path)
-    if candidate.suffix == ".toml" or len(candidate.parts) > 1:
-        if not candidate.is_file():
-            raise ConfigError(f"{candidate}: radio profile file not found")
-        return candidate
-    spec = find_spec("simulator")
-    folder = Path(next(iter(spec.submodule_search_locations))) / "params" / "radio" if spec else None
-    path = folder / f"{name_or_path}.toml" if folder else None
-    if path is None or not path.is_file():
-        known = ", ".join(sorted(p.stem for p in folder.glob("*.toml"))) if folder else "none found"
-        raise ConfigError(f"--radio: unknown radio profile '{name_or_path}' (built-in: {known}; or give a .toml file)")
-    return path
 
 
 def load_base_profile(path: Path) -> Params:
@@ -450,7 +430,7 @@ def write_csv(path: Path, results: Iterable[CellResult], modes: Sequence[str]) -
 
 def fly_argv(opts: SweepOptions, cell: Cell, profile: Path, log_dir: Path) -> list[str]:
     """The `cfstack fly` command line of one cell (run as `python -m link`, the same program)."""
-    argv = [sys.executable, "-m", "link", "fly"]
+    argv = [sys.executable, "-m", "cfstack", "fly"]
     if opts.world:
         argv.append(str(Path(opts.world).resolve()))
     argv += ["--mode", cell.mode, "--radio", str(profile.resolve()), "--clock", "lockstep",
@@ -772,7 +752,7 @@ def _check_resume(opts: SweepOptions) -> None:
 def command(argv: list[str]) -> int:
     """Entry point of `cfstack sweep`: 0 when every cell was flown, 130 after Ctrl-C; UserError on bad input."""
     opts = parse_options(argv)
-    base = load_base_profile(base_profile_path(opts.radio_base))
+    base = load_base_profile(radio_profile_path(opts.radio_base))
     if opts.out.exists() and not opts.out.is_dir():
         raise UserError(f"--out {opts.out}: exists and is not a folder")
     if opts.resume:

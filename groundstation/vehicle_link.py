@@ -13,11 +13,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from link.codec import ActuatorLimits, Codec, FrameParser
 from link.endpoint import Endpoint
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
+from link.mavlink.tlog import TlogWriter
 from link.messages import Received
-from link.tlog import TlogWriter
 from link.transports import open_transport
 
 

@@ -1,6 +1,11 @@
-"""cfstack link: everything that crosses between processes.
+"""cfstack link: what crosses between processes, and nothing else.
 
-Takes in: typed messages (link.messages dataclasses, ENU/FLU, SI units) and raw frames from transports.
-Gives out: MAVLink 2 frames on a transport chosen by connection string, link statistics, .tlog logs.
-pymavlink and zenoh are imported here and nowhere else in the project.
+Holds: the message schema both codecs speak (link.messages: plain dataclasses, ENU/FLU, SI units), the
+codecs (link.mavlink: MAVLink 2 with signing and the .tlog format), the transports chosen by
+connection string (link.transports: zenoh, UDP, serial, in-memory), the zenoh keys and system ids
+(link.keys), the lockstep clock messages (link.clock), endpoints and link statistics (link.endpoint,
+link.stats).
+Takes in: typed messages and raw frames from transports.
+Gives out: frames on a transport, decoded messages, link statistics, logs.
+May import: model (frames, errors). pymavlink and zenoh are imported here and nowhere else.
 """

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from link.codec import Codec, FrameParser
+from link.mavlink.codec import Codec, FrameParser
+from link.mavlink.tlog import TlogWriter
 from link.messages import Message, Received
 from link.stats import LinkStats
-from link.tlog import TlogWriter
 from link.transports.base import Transport
 
 STREAM_SCHEMES = frozenset({"serial"})  # transports that deliver byte chunks rather than whole frames

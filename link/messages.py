@@ -5,7 +5,7 @@ Frames: world ENU (x east, y north, z up), body FLU (x forward, y left, z up). U
 Quaternions are (w, x, y, z) and rotate body FLU vectors into world ENU.
 Times `time_s` are seconds on the sender's clock (the vehicle's boot clock for downlink,
 the ground station's clock for uplink; in lockstep both are simulation time).
-MAVLink's NED/FRD conventions exist only inside link.codec.
+MAVLink's NED/FRD conventions exist only inside link.mavlink.codec.
 """
 
 from __future__ import annotations
@@ -13,8 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-Vec3 = tuple[float, float, float]
-Quat = tuple[float, float, float, float]
+from model.frames import Quat, Vec3
 
 
 @dataclass(frozen=True)

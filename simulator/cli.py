@@ -18,10 +18,10 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from link.errors import UserError
 from link.keys import DEFAULT_PREFIX
-from link.signing import add_signing_arguments, signing_from_args
-from link.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
+from link.mavlink.signing import add_signing_arguments, signing_from_args
+from link.transports.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
+from model.errors import UserError
 
 if TYPE_CHECKING:
     from simulator.emulator import EmulatorConfig
@@ -127,10 +127,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
-    from link.vehicle import load_mocap_room, load_vehicle
-    from link.world import load_world
+    from model.radio import load_radio_profile
+    from model.vehicle import load_mocap_room, load_vehicle
+    from model.world import load_world
     from simulator.emulator import EmulatorConfig, Outage
-    from simulator.radio import load_radio_profile
 
     if args.radio_ledger is not None and not Path(args.radio_ledger).resolve().parent.is_dir():
         raise UserError(f"--radio-ledger {args.radio_ledger}: no such directory to write it in")

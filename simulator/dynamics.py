@@ -1,6 +1,6 @@
 """Rigid-body quadrotor dynamics with floor contact and crash detection.
 
-Takes in: a Vehicle (link.vehicle), contact rules (ContactParams, from simulator/params/firmware.toml),
+Takes in: a Vehicle (model.vehicle), contact rules (ContactParams, from simulator/params/firmware.toml),
 an optional World, a fixed step dt (s), and commanded rotor speeds (rad/s) held over each step.
 Gives out: the state after each step - position r (world ENU, m), velocity v (ENU, m/s), attitude q
 (w, x, y, z; body FLU -> world ENU), body rates w (FLU, rad/s), rotor speeds (rad/s) - the specific
@@ -35,9 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from link.messages import TruthState
-from link.vehicle import GRAVITY_MPS2, Vehicle
-from link.world import World
-from simulator.rotation import IDENTITY, Quat, Vec3, level_with_yaw, quat_normalize
+from model.frames import IDENTITY, Quat, Vec3, level_with_yaw, quat_normalize
+from model.vehicle import GRAVITY_MPS2, Vehicle
+from model.world import World
 
 _NO_DV: Vec3 = (0.0, 0.0, 0.0)  # no contact impulse since the last IMU sample (compared by identity)
 

@@ -68,15 +68,16 @@ from pathlib import Path
 import numpy as np
 
 from link.clock import NS_PER_S, ClockTick, unpack_ack
-from link.codec import IFLAG_SIGNED, MAGIC_V2, MIN_FRAME_LEN, ActuatorLimits, Codec, FrameParser
-from link.errors import UserError
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.mavlink.codec import IFLAG_SIGNED, MAGIC_V2, MIN_FRAME_LEN, ActuatorLimits, Codec, FrameParser
+from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
 from link.messages import RadioStatus
-from link.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
 from link.transports import Transport, open_transport
-from link.vehicle import MocapRoom, Vehicle
-from link.world import World
-from simulator.radio import TIME_EPS_S, RadioChannel, RadioProfile
+from model.errors import UserError
+from model.radio import RadioProfile
+from model.vehicle import MocapRoom, Vehicle
+from model.world import World
+from simulator.radio import TIME_EPS_S, RadioChannel
 from simulator.vehicle_sim import SimVehicle
 
 log = logging.getLogger("cfstack.emulator")

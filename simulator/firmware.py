@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
-from link.config import Params, resolve
 from link.messages import (
     AttitudeTarget,
     BatteryStatus,
@@ -46,16 +45,17 @@ from link.messages import (
     VehicleCommand,
     VehicleMode,
 )
-from link.vehicle import GRAVITY_MPS2, Vehicle
-from simulator.dynamics import ContactParams, Crash
-from simulator.mixer import Mixer
-from simulator.rotation import (
+from model.config import Params, resolve
+from model.frames import (
     Quat,
     Vec3,
     quat_from_euler_zyx,
     quat_from_yaw,
     yaw_of,
 )
+from model.vehicle import GRAVITY_MPS2, Vehicle
+from simulator.dynamics import ContactParams, Crash
+from simulator.mixer import Mixer
 
 MOTORS_OFF = (0.0, 0.0, 0.0, 0.0)
 _SETPOINTS_IGNORED_IN = (VehicleMode.LANDING, VehicleMode.CRASHED)  # armed modes that ignore setpoints

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from link.vehicle import Vehicle
+from model.vehicle import Vehicle
 
 
 class Mixer:

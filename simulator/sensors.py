@@ -2,7 +2,7 @@
 
 Takes in: the true specific force (body FLU, m/s^2) and body rates (FLU, rad/s) for the IMU; the true
 position (ENU, m) and attitude (w, x, y, z) for mocap; sample times (sim s); noise parameters
-(link.vehicle.ImuNoise, link.vehicle.MocapRoom); a numpy Generator each (all randomness comes from it).
+(model.vehicle.ImuNoise, model.vehicle.MocapRoom); a numpy Generator each (all randomness comes from it).
 Gives out: ImuSample and MocapPose messages (time_s = the sample time) or None for a dropped mocap frame.
 
 IMU (discrete-time equivalent of continuous-time densities, sample period dt = 1 / rate_hz):
@@ -29,8 +29,8 @@ import math
 import numpy as np
 
 from link.messages import ImuSample, MocapPose
-from link.vehicle import ImuNoise, MocapRoom
-from simulator.rotation import Quat, Vec3
+from model.frames import Quat, Vec3, quat_exp_rows
+from model.vehicle import ImuNoise, MocapRoom
 
 DRAW_BLOCK = 256  # samples of random numbers drawn per Generator call
 
@@ -140,17 +140,8 @@ class MocapModel:
         u = self.rng.random((DRAW_BLOCK, 2))
         n = self.rng.standard_normal((DRAW_BLOCK, 9))
         position = n[:, 0:3] * room.position_noise_m
-        error = _quat_exp(n[:, 3:6] * room.attitude_noise_rad)
+        error = quat_exp_rows(n[:, 3:6] * room.attitude_noise_rad)
         norm = np.linalg.norm(n[:, 6:9], axis=1, keepdims=True)
         jump = n[:, 6:9] * (room.outlier_magnitude_m / np.where(norm > 0.0, norm, 1.0))
         self._rows = np.hstack([u, position, error, jump]).tolist()
         self._next = 0
-
-
-def _quat_exp(rotvec: np.ndarray) -> np.ndarray:
-    """Rows (w, x, y, z) = exp of rotation vectors (rad): (cos(a/2), sin(a/2) r/a), a = |r|."""
-    angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
-    small = angle < 1e-12
-    safe = np.where(small, 1.0, angle)
-    scale = np.where(small, 0.5, np.sin(0.5 * safe) / safe)  # first order below 1e-12 rad
-    return np.hstack([np.where(small, 1.0, np.cos(0.5 * safe)), rotvec * scale])

@@ -35,10 +35,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from link.errors import UserError, WorldError
 from link.messages import Message, TimeSync, TruthState
-from link.vehicle import MocapRoom, Vehicle
-from link.world import World
+from model.errors import UserError, WorldError
+from model.vehicle import MocapRoom, Vehicle
+from model.world import World
 from simulator.dynamics import Crash, QuadrotorDynamics
 from simulator.firmware import Firmware, FirmwareParams, load_firmware_params
 from simulator.sensors import ImuModel, MocapModel

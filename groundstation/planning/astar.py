@@ -36,8 +36,8 @@ from itertools import product
 import numpy as np
 
 from groundstation.planning.occupancy import OccupancyGrid, segments_are_free
-from link.errors import UserError
-from link.world import World
+from model.errors import UserError
+from model.world import World
 
 # Candidate voxels for leaving an occupied start/goal voxel are tested in chunks of this many,
 # nearest first (each test is an exact segment-box distance against every block).

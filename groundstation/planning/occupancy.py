@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from link.world import World
+from model.world import World
 
 # Relative tolerance on ceil(extent / resolution): 5.7 / 0.05 is 114.00000000000001 in floating point
 # and must still give 114 voxels, not 115.

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from groundstation.planning.occupancy import segments_are_free
-from link.world import World
+from model.world import World
 
 # Visibility is tested from the anchor to this many following points at once, doubling each time the
 # whole chunk is visible (A* paths in the lab mazes see 10-100 points ahead).

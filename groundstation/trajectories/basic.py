@@ -27,8 +27,8 @@ from numpy.polynomial import Polynomial
 
 from groundstation.trajectories.flat import at_rest, flat_output, polyval
 from groundstation.trajectory import FlatOutput, Trajectory
-from link.config import Params, resolve
-from link.errors import UserError
+from model.config import Params, resolve
+from model.errors import UserError
 
 SMOOTHSTEP = Polynomial([0.0, 0.0, 0.0, 0.0, 35.0, -84.0, 70.0, -20.0])
 # s, s', s'', s''', s'''' of the smoothstep, and its integral (for the circle's angle during spin-up).

@@ -33,8 +33,8 @@ import numpy as np
 from groundstation.planning import load_planning_params
 from groundstation.trajectories.flat import at_rest, flat_output
 from groundstation.trajectory import FlatOutput
-from link.config import Params
-from link.errors import UserError
+from model.config import Params
+from model.errors import UserError
 
 _ZERO_DERIVATIVES = (0.0,) * 9  # acceleration, jerk and snap within a constant-speed segment
 

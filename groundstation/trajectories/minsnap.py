@@ -51,10 +51,10 @@ from groundstation.planning.occupancy import segments_clearance
 from groundstation.planning.pruning import prune_waypoints
 from groundstation.trajectories.flat import at_rest
 from groundstation.trajectory import FlatOutput
-from link.config import Params
-from link.errors import UserError
-from link.vehicle import GRAVITY_MPS2, Vehicle, load_vehicle
-from link.world import World
+from model.config import Params
+from model.errors import UserError
+from model.vehicle import GRAVITY_MPS2, Vehicle, load_vehicle
+from model.world import World
 
 DEGREE = 7
 N_COEF = DEGREE + 1

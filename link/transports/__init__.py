@@ -1,11 +1,12 @@
 """Transports: byte pipes chosen by connection string through an explicit scheme table.
 
-Takes in: a connection string `SCHEME:ADDRESS` (see SCHEMES) and, for keyed transports, the channel
-names to send on and receive from.
+Takes in: a connection string `SCHEME:ADDRESS` (see link.transports.table.SCHEMES) and, for keyed
+transports, the channel names to send on and receive from.
 Gives out: a `Transport` (open/close, send one frame, receive frames, statistics).
-A new radio (e.g. a Crazyradio tunnelling MAVLink in CRTP packets) is one more class and one more row.
+A new radio is one more class (a subclass of link.transports.base.Transport) and one more row in the table.
 """
 
-from link.transports.base import Transport, TransportStats, open_transport, parse_connection, register_scheme
+from link.transports.base import Transport, TransportStats
+from link.transports.table import SCHEMES, open_transport, parse_connection
 
-__all__ = ["Transport", "TransportStats", "open_transport", "parse_connection", "register_scheme"]
+__all__ = ["SCHEMES", "Transport", "TransportStats", "open_transport", "parse_connection"]

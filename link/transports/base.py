@@ -1,7 +1,7 @@
-"""The Transport interface and the scheme -> class table.
+"""The Transport interface every medium implements (the scheme table is link.transports.table).
 
-Takes in: a connection string and channel names.
-Gives out: an opened Transport. Frames are opaque bytes here; MAVLink framing lives in link.codec.
+Takes in: an address and channel names (from a connection string, through the table).
+Gives out: a Transport to open. Frames are opaque bytes here; MAVLink framing lives in link.mavlink.codec.
 
 Contract every transport meets (tests/link/test_transport_contract.py runs it on each scheme):
 - `open()` / `close()` are idempotent; the transport is a context manager.
@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-
-from link.errors import UserError
 
 
 @dataclass
@@ -77,42 +75,3 @@ class Transport(abc.ABC):
 
     def describe(self) -> str:
         return f"{self.scheme}:{self.address}"
-
-
-SCHEMES: dict[str, type[Transport]] = {}
-
-
-def register_scheme(cls: type[Transport]) -> type[Transport]:
-    """Class decorator adding a transport to the table under `cls.scheme`."""
-    if not cls.scheme:
-        raise ValueError(f"{cls.__name__} has no scheme")
-    SCHEMES[cls.scheme] = cls
-    return cls
-
-
-def parse_connection(connection: str) -> tuple[str, str]:
-    """Split 'scheme:address'. A bare 'zenoh' means zenoh with its defaults."""
-    scheme, sep, address = connection.partition(":")
-    if not sep and scheme != "zenoh":
-        raise UserError(f"connection string '{connection}' has no scheme (expected SCHEME:ADDRESS, "
-                        f"schemes: {', '.join(sorted(_table()))})")
-    return scheme, address
-
-
-def _table() -> dict[str, type[Transport]]:
-    # Importing the modules fills SCHEMES; the explicit list below is the scheme table.
-    from link.transports import mem, serial_stream, udp, zenoh_transport  # noqa: F401
-
-    return SCHEMES
-
-
-def open_transport(connection: str, tx: str | None = None, rx: str | None = None, **options) -> Transport:
-    """Build and open the transport a connection string names."""
-    scheme, address = parse_connection(connection)
-    table = _table()
-    if scheme not in table:
-        raise UserError(f"unknown transport scheme '{scheme}' in '{connection}' "
-                        f"(one of: {', '.join(sorted(table))})")
-    transport = table[scheme](address, tx=tx, rx=rx, **options)
-    transport.open()
-    return transport

@@ -16,8 +16,8 @@ from __future__ import annotations
 import queue
 import threading
 
-from link.errors import UserError
-from link.transports.base import Transport, register_scheme
+from link.transports.base import Transport
+from model.errors import UserError
 
 # Bound of each receive queue: a few seconds of a 1 kHz lockstep stream, small enough that a stalled
 # reader is noticed (through frames_dropped) rather than growing memory without limit.
@@ -71,7 +71,6 @@ def _forget_bus_if_unused(name: str) -> None:
             del _BUSES[name]
 
 
-@register_scheme
 class MemTransport(Transport):
     scheme = "mem"
 

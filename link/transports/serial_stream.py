@@ -4,7 +4,7 @@ Takes in: DEVICE (a path such as /dev/ttyUSB0, or a name such as COM3) and BAUD 
 positive integer), e.g. `serial:/dev/ttyUSB0:57600`. Options: `write_timeout_s` (longest a send may
 wait for room in the driver's buffer, default DEFAULT_WRITE_TIMEOUT_S).
 Gives out: a point-to-point stream transport (channel names are ignored). send() writes the frame's
-bytes; receive() returns raw byte chunks as they arrived, cut anywhere: link.codec's stream parser
+bytes; receive() returns raw byte chunks as they arrived, cut anywhere: link.mavlink.codec's stream parser
 reassembles frames and skips line noise.
 Reads are non-blocking (pyserial timeout=0) after select() waits at most `timeout_s`.
 """
@@ -16,8 +16,8 @@ import time
 
 import serial
 
-from link.errors import UserError
-from link.transports.base import Transport, register_scheme
+from link.transports.base import Transport
+from model.errors import UserError
 
 # Long enough for a full 4 kB driver buffer to drain at 57600 baud (~0.7 s), short enough that a
 # stalled device cannot hang the caller.
@@ -41,7 +41,6 @@ def parse_device_baud(address: str) -> tuple[str, int]:
     return device, baud
 
 
-@register_scheme
 class SerialTransport(Transport):
     scheme = "serial"
 

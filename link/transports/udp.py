@@ -15,8 +15,8 @@ from __future__ import annotations
 import select
 import socket
 
-from link.errors import UserError
-from link.transports.base import Transport, register_scheme
+from link.transports.base import Transport
+from model.errors import UserError
 
 # Largest UDP payload; MAVLink 2 frames are at most 280 bytes but a peer may batch several.
 MAX_DATAGRAM_BYTES = 65535
@@ -133,7 +133,6 @@ class _UdpTransport(Transport):
         """udpin replies to whoever spoke last; udpout keeps its fixed destination."""
 
 
-@register_scheme
 class UdpInTransport(_UdpTransport):
     scheme = "udpin"
     allow_port_zero = True  # port 0: the kernel picks a free port (see local_address)
@@ -155,7 +154,6 @@ class UdpInTransport(_UdpTransport):
         self.peer = sender
 
 
-@register_scheme
 class UdpOutTransport(_UdpTransport):
     scheme = "udpout"
 

@@ -13,7 +13,7 @@ its router up at open (else UserError). zenoh keeps no history: a sample publish
 end's subscriber is known is lost, so a starting sender calls wait_for_subscribers().
 
 Design:
-- Every zenoh transport with the same session settings shares one session (link.zenoh_session).
+- Every zenoh transport with the same session settings shares one session (link.transports.zenoh_session).
   Transports in one process reach each other through it; a transport whose tx equals its rx hears
   its own frames.
 - Publishing uses a declared Publisher, reliability RELIABLE and congestion control BLOCK, so a lockstep
@@ -52,7 +52,7 @@ Design:
   sys.setswitchinterval(1e-4) changed nothing beyond the noise, before or after: with no Python thread
   on the data path there is no GIL hand-over left to shorten.
 - What runs between recv() returning a frame and receive() returning is on the caller's critical
-  path (a reply is computed from that frame) and runs with cold caches (see link.bench, "Reading the
+  path (a reply is computed from that frame) and runs with cold caches (see cfstack.link_bench, "Reading the
   ratios"), so it is kept to: the payload, one try_recv() for frames queued behind it, the byte
   counts. Cutting it to that (no kind check, no disarm/_drain() calls, no generator) lowered the
   transport row's p50 by 12 us (median; -19..+7 us) against the previous code in the same runs
@@ -70,15 +70,15 @@ import weakref
 
 import zenoh
 
-from link.errors import UserError
-from link.transports.base import Transport, register_scheme
-from link.zenoh_session import (
+from link.transports.base import Transport
+from link.transports.zenoh_session import (
     SESSION_OPTIONS,
     ZenohSettings,
     acquire_session,
     release_session,
     zenoh_error_text,
 )
+from model.errors import UserError
 
 # Bound of the receive buffer (zenoh's FIFO): several seconds of a 1 kHz stream.
 DEFAULT_QUEUE_FRAMES = 8192
@@ -176,7 +176,6 @@ class _Waker:
             pass  # the session closed under us: the blocked recv() has ended anyway
 
 
-@register_scheme
 class ZenohTransport(Transport):
     scheme = "zenoh"
 

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from link.messages import ImuSample, MocapPose
-from link.vehicle import GRAVITY_MPS2, ImuNoise, MocapRoom
+from model.vehicle import GRAVITY_MPS2, ImuNoise, MocapRoom
 
 E1 = np.array([1.0, 0.0, 0.0])
 E3 = np.array([0.0, 0.0, 1.0])

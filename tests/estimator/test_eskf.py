@@ -23,11 +23,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from synthetic import Flight, LinkFaults, circle_kinematics, flat_attitude, simulate  # noqa: E402
 
-from estimator import rotation  # noqa: E402
 from estimator.eskf import ErrorStateKF, load_eskf_params  # noqa: E402
-from link.errors import ConfigError, UserError  # noqa: E402
 from link.messages import ImuSample, MocapPose  # noqa: E402
-from link.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle  # noqa: E402
+from model.errors import ConfigError, UserError  # noqa: E402
+from model.frames import attitude_error  # noqa: E402
+from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle  # noqa: E402
 
 VEHICLE = load_vehicle("crazyflie")
 ROOM = load_mocap_room("vicon")
@@ -56,7 +56,7 @@ def fly(run, kf: ErrorStateKF | None = None, on_arrival: bool = False, events=No
 def error_vector(truth, e) -> np.ndarray:
     """Truth minus estimate in the filter's 15-dim error coordinates (attitude: local, body frame)."""
     i = truth.index(e.time_s)
-    dtheta = rotation.attitude_error(tuple(e.attitude_wxyz), tuple(truth.attitude_wxyz[i]))
+    dtheta = attitude_error(tuple(e.attitude_wxyz), tuple(truth.attitude_wxyz[i]))
     return np.concatenate([
         truth.position_enu_m[i] - e.position_enu_m,
         truth.velocity_enu_mps[i] - e.velocity_enu_mps,
@@ -74,22 +74,6 @@ def rms_errors(run, estimates, t_from: float, t_to: float = math.inf) -> tuple[f
 
 
 # ---------------------------------------------------------------------------- helpers are right
-
-
-def test_quaternion_helpers_match_scipy():
-    rng = np.random.default_rng(1)
-    for _ in range(50):
-        a, b = Rotation.random(2, rng=rng)
-        qa, qb = tuple(a.as_quat(scalar_first=True)), tuple(b.as_quat(scalar_first=True))
-        product = Rotation.from_quat(rotation.quat_multiply(qa, qb), scalar_first=True)
-        assert (product * (a * b).inv()).magnitude() < 1e-12
-        assert np.allclose(np.array(rotation.quat_to_matrix(qa)).reshape(3, 3), a.as_matrix(), atol=1e-12)
-        v = rng.normal(size=3)
-        v *= rng.choice([1e-9, 1e-3, 1.0, 3.0]) / np.linalg.norm(v)  # |angle| < pi: Log is unique
-        q = Rotation.from_quat(rotation.quat_exp(*v), scalar_first=True)
-        assert np.allclose(q.as_rotvec(), v, atol=1e-12, rtol=1e-9)
-        assert np.allclose(rotation.quat_log(tuple(q.as_quat(scalar_first=True))), v, atol=1e-12, rtol=1e-9)
-        assert np.allclose(rotation.attitude_error(qa, qb), (a.inv() * b).as_rotvec(), atol=1e-10)
 
 
 def test_synthetic_truth_obeys_rigid_body_kinematics():

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from groundstation.sweep import dump_toml
 
-RADIO_DIR = Path(__file__).resolve().parents[2] / "simulator" / "params" / "radio"
+RADIO_DIR = Path(__file__).resolve().parents[2] / "model" / "params" / "radio"
 
 
 def free_port() -> int:

@@ -11,8 +11,8 @@ import pytest
 from groundstation.planning.astar import astar, plan_path
 from groundstation.planning.occupancy import OccupancyGrid
 from groundstation.planning.pruning import prune_waypoints
-from link.errors import UserError
-from link.world import World, load_world
+from model.errors import UserError
+from model.world import World, load_world
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

@@ -19,7 +19,7 @@ from groundstation.trajectories.basic import (
     make_builtin,
 )
 from groundstation.trajectories.flat import polyval
-from link.errors import ConfigError, UserError
+from model.errors import ConfigError, UserError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

@@ -14,7 +14,7 @@ from groundstation.trajectories.constant_speed import (
     ConstantSpeedTrajectory,
     downsample_path,
 )
-from link.errors import UserError
+from model.errors import UserError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

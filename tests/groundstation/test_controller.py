@@ -12,11 +12,11 @@ from scipy.spatial.transform import Rotation
 
 from groundstation.compensation import LatencyCompensator
 from groundstation.controller import ControllerState, Gains, SE3Controller, load_gains
-from groundstation.rotation import hat, matrix_to_quat, quat_to_matrix, rot_x, rot_y, rot_z, vee
 from groundstation.trajectories.basic import Circle, Step
 from groundstation.trajectory import FlatOutput
-from link.errors import ConfigError
-from link.vehicle import GRAVITY_MPS2, load_vehicle
+from model.errors import ConfigError
+from model.frames import matrix_to_quat, quat_to_matrix, rot_x, rot_y, rot_z, vee
+from model.vehicle import GRAVITY_MPS2, load_vehicle
 
 VEHICLE = load_vehicle("crazyflie")
 GAINS = load_gains()
@@ -33,28 +33,6 @@ def at_rest(position, attitude=LEVEL, rate=(0.0, 0.0, 0.0), velocity=(0.0, 0.0, 
 
 def hold(position, yaw=0.0) -> FlatOutput:
     return FlatOutput(position_m=np.asarray(position, float), yaw_rad=yaw)
-
-
-# --- rotation helpers ---------------------------------------------------------------------------------
-
-def test_quaternion_conversions_agree_with_scipy():
-    rng = np.random.default_rng(7)
-    for q_xyzw in Rotation.random(50, random_state=rng).as_quat():
-        q = np.roll(q_xyzw, 1)  # scipy is scalar-last
-        expected = Rotation.from_quat(q_xyzw).as_matrix()
-        np.testing.assert_allclose(quat_to_matrix(q), expected, atol=1e-12)
-        back = matrix_to_quat(expected)
-        assert back[0] >= 0.0
-        np.testing.assert_allclose(back, q * np.sign(q[0]), atol=1e-12)
-
-
-def test_hat_vee_and_elementary_rotations():
-    v, u = np.array([0.3, -1.2, 2.0]), np.array([-0.7, 0.4, 1.1])
-    np.testing.assert_allclose(hat(v) @ u, np.cross(v, u))
-    np.testing.assert_allclose(vee(hat(v)), v)
-    for rot, axis in ((rot_x, [1, 0, 0]), (rot_y, [0, 1, 0]), (rot_z, [0, 0, 1])):
-        expected = Rotation.from_rotvec(0.4 * np.array(axis)).as_matrix()
-        np.testing.assert_allclose(rot(0.4), expected, atol=1e-15)
 
 
 # --- gains file ---------------------------------------------------------------------------------------

@@ -33,17 +33,17 @@ import pytest
 from groundstation.logread import read_log
 from groundstation.mission import load_mission_params
 from groundstation.session import DEFAULT_RATE_HZ
-from link.codec import IFLAG_SIGNED, ActuatorLimits, Codec, FrameParser
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.mavlink.codec import IFLAG_SIGNED, ActuatorLimits, Codec, FrameParser
+from link.mavlink.signing import ENV_VAR, Signing
+from link.mavlink.tlog import read_tlog
 from link.messages import AttitudeTarget, CommandKind, Heartbeat, ThrustMoment, VehicleCommand
-from link.signing import ENV_VAR, Signing
-from link.tlog import read_tlog
 from link.transports import open_transport
-from link.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
+from model.radio import load_radio_profile
+from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.cli import build_parser as build_emulator_parser
 from simulator.emulator import GroundFrameGate
 from simulator.firmware import load_firmware_params
-from simulator.radio import load_radio_profile
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -79,7 +79,7 @@ def world(tmp_path_factory) -> Path:
 
 
 def cfstack(*args, env: dict | None = None, timeout: float = TIMEOUT_S) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "link", *args], capture_output=True, text=True, timeout=timeout,
+    return subprocess.run([sys.executable, "-m", "cfstack", *args], capture_output=True, text=True, timeout=timeout,
                           stdin=subprocess.DEVNULL, env=env)
 
 
@@ -135,7 +135,7 @@ def radio_cut(world, tmp_path_factory):
 def last_setpoint_arrival_s(log, report) -> float:
     """When the vehicle received its last setpoint: the ground station's frames (tlog, in send order)
     matched one to one with the uplink radio's ledger (same order: frames offered before the cut)."""
-    frames = read_tlog(log.folder / "link.tlog", FrameParser(LIMITS))
+    frames = read_tlog(log.folder / "link.mavlink.tlog", FrameParser(LIMITS))
     sent = [d for _, d in frames if d.system_id == GROUND_STATION_SYSTEM_ID]
     ledger = report["vehicles"]["1"]["uplink"]["ledger"]
     assert 0 < len(ledger) < len(sent)
@@ -345,7 +345,7 @@ def test_signed_flight_ignores_a_rogue_publishers_unsigned_and_replayed_frames(w
     prefix = f"fs{uuid.uuid4().hex[:8]}"
     report_path = tmp_path / "radio.json"
     emulator = subprocess.Popen(
-        [sys.executable, "-m", "link", "emulator", "--listen", endpoint, "--clock", "lockstep", "--radio", radio,
+        [sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--clock", "lockstep", "--radio", radio,
          "--seed", str(SEED), "--id", prefix, "--world", str(world), "--airborne", "--quiet",
          "--radio-ledger", str(report_path)],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)

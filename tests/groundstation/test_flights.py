@@ -1,7 +1,7 @@
 """Whole flight sessions over zenoh against the emulator (lockstep, seeded): the ground station's job.
 
 Issue 4 targets checked here: hover at 1 m for 10 s with the crazyradio profile, RMS position error
-<= 1 cm in both command modes; the --json contract; logs (states.csv, link.tlog, summary.json) that are
+<= 1 cm in both command modes; the --json contract; logs (states.csv, link.mavlink.tlog, summary.json) that are
 complete after a flight and readable after the ground station is killed; one-line errors for bad input.
 """
 
@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from groundstation.logread import read_log
-from link.codec import ActuatorLimits, FrameParser
+from link.mavlink.codec import ActuatorLimits, FrameParser
+from link.mavlink.tlog import read_tlog
 from link.messages import ImuSample, ThrustMoment
-from link.tlog import read_tlog
-from link.vehicle import load_vehicle
+from model.vehicle import load_vehicle
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -35,7 +35,7 @@ HOVER_RMS_TARGET_M = 0.01  # issue 4
 
 
 def cfstack(*args, timeout=240, **kw):
-    return subprocess.run([sys.executable, "-m", "link", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "cfstack", *args], capture_output=True, text=True,
                           timeout=timeout, stdin=subprocess.DEVNULL, **kw)
 
 
@@ -62,7 +62,7 @@ def test_fly_hover_in_moments_mode_meets_the_hover_target_and_logs_everything(tm
     # The link figures agree with what the log holds, frame for frame.
     link = summary["link"]
     # thrust/moment frames are normalised by the vehicle's limits: the reader needs them to decode
-    frames = read_tlog(log / "link.tlog", FrameParser(ActuatorLimits.from_vehicle(load_vehicle())))
+    frames = read_tlog(log / "link.mavlink.tlog", FrameParser(ActuatorLimits.from_vehicle(load_vehicle())))
     sent = [d for _, d in frames if d.system_id == 255]
     received = [d for _, d in frames if d.system_id != 255]
     assert len(sent) == link["uplink_sent"]
@@ -82,7 +82,7 @@ def test_fly_hover_in_moments_mode_meets_the_hover_target_and_logs_everything(tm
 def test_groundstation_flies_a_separately_started_emulator_in_attitude_mode(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     prefix = f"t{uuid.uuid4().hex[:8]}"
-    emulator = subprocess.Popen([sys.executable, "-m", "link", "emulator", "--listen", endpoint, "--id", prefix,
+    emulator = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--id", prefix,
                                  "--quiet"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True)
     try:
@@ -103,7 +103,7 @@ def test_groundstation_flies_a_separately_started_emulator_in_attitude_mode(tmp_
 def test_a_killed_ground_station_leaves_readable_logs_and_no_emulator(tmp_path):
     log = tmp_path / "log"
     prefix = f"k{uuid.uuid4().hex[:8]}"
-    proc = subprocess.Popen([sys.executable, "-m", "link", "fly", "--trajectory", "hover", "--id", prefix,
+    proc = subprocess.Popen([sys.executable, "-m", "cfstack", "fly", "--trajectory", "hover", "--id", prefix,
                              "--log", str(log)], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     states = log / "states.csv"
@@ -114,7 +114,7 @@ def test_a_killed_ground_station_leaves_readable_logs_and_no_emulator(tmp_path):
     proc.wait(timeout=10)
     flight = read_log(log)  # tolerates the row being written when it died
     assert len(flight.t_s) > 500
-    frames = read_tlog(log / "link.tlog", FrameParser(ActuatorLimits.from_vehicle(load_vehicle())))
+    frames = read_tlog(log / "link.mavlink.tlog", FrameParser(ActuatorLimits.from_vehicle(load_vehicle())))
     assert len(frames) >= 2 * len(flight.t_s) - 10  # about an IMU sample in and a command out per tick
     # the child emulator was told to die with its parent (it would otherwise wait for acks forever)
     deadline = time.monotonic() + 10

@@ -23,7 +23,7 @@ pytestmark = pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files
 
 
 def fly(world: str, radio: str, log: Path) -> tuple[dict | None, str]:
-    run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / f"{world}.json"), "--mode", "attitude",
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(WORLDS / f"{world}.json"), "--mode", "attitude",
                           "--radio", radio, "--seed", "5", "--json", "--log", str(log)],
                          capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
     return (json.loads(run.stdout) if run.stdout.strip() else None), run.stderr[-1500:]

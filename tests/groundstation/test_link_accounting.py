@@ -20,10 +20,10 @@ from pathlib import Path
 
 import pytest
 
-from link.codec import ActuatorLimits, FrameParser
 from link.keys import GROUND_STATION_SYSTEM_ID
-from link.tlog import read_tlog
-from link.vehicle import load_vehicle
+from link.mavlink.codec import ActuatorLimits, FrameParser
+from link.mavlink.tlog import read_tlog
+from model.vehicle import load_vehicle
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -38,12 +38,12 @@ def fly_against_emulator(tmp_path: Path, radio: Path, *gs_args: str) -> tuple[di
     """Emulator (with its radio ledger) and ground station as two programs; returns (summary, report, log)."""
     endpoint, prefix = f"tcp/127.0.0.1:{free_port()}", f"a{uuid.uuid4().hex[:8]}"
     ledger, log = tmp_path / "radio.json", tmp_path / "log"
-    emulator = subprocess.Popen([sys.executable, "-m", "link", "emulator", "--listen", endpoint, "--id", prefix,
+    emulator = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--id", prefix,
                                  "--radio", str(radio), "--seed", "3", "--radio-ledger", str(ledger), "--quiet"],
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                 text=True)
     try:
-        run = subprocess.run([sys.executable, "-m", "link", "groundstation", "--connect", endpoint, "--id", prefix,
+        run = subprocess.run([sys.executable, "-m", "cfstack", "groundstation", "--connect", endpoint, "--id", prefix,
                               "--clock", "lockstep", "--json", "--log", str(log), *gs_args],
                              capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
     finally:
@@ -55,7 +55,7 @@ def fly_against_emulator(tmp_path: Path, radio: Path, *gs_args: str) -> tuple[di
 
 def received_downlink_indices(log: Path) -> list[int]:
     """Offer indices of the downlink frames the ground station received, unwrapped from 8-bit sequences."""
-    frames = read_tlog(log / "link.tlog", FrameParser(ActuatorLimits.from_vehicle(load_vehicle())))
+    frames = read_tlog(log / "link.mavlink.tlog", FrameParser(ActuatorLimits.from_vehicle(load_vehicle())))
     indices, last_seq, index = [], None, -1
     for _, decoded in frames:
         if decoded.system_id == GROUND_STATION_SYSTEM_ID:
@@ -126,7 +126,7 @@ def test_timesync_and_frame_ages_equal_the_configured_latency(tmp_path):
 
 def _states_hash(tmp_path, seed: int, name: str, mode: str, *extra: str) -> str:
     log = tmp_path / name
-    run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / "maze_2024_1.json"), "--mode",
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(WORLDS / "maze_2024_1.json"), "--mode",
                           mode, "--seed", str(seed), "--json", "--log", str(log), *extra],
                          capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
     assert json.loads(run.stdout)["result"] == "reached_goal", run.stderr

@@ -31,7 +31,7 @@ pytestmark = pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files
 
 def fly(world: str, mode: str, log: Path) -> tuple[int, dict | None, str]:
     args = COURSE_ARGS if world in COURSE_MAPS else LAB_ARGS
-    run = subprocess.run([sys.executable, "-m", "link", "fly", str(WORLDS / f"{world}.json"), "--mode", mode,
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(WORLDS / f"{world}.json"), "--mode", mode,
                           "--radio", "crazyradio", "--clock", "lockstep", "--seed", "7", "--json", "--log", str(log),
                           *args], capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
     summary = json.loads(run.stdout) if run.stdout.strip() else None

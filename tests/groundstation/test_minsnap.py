@@ -23,9 +23,9 @@ from groundstation.trajectories.minsnap import (
     solve_coefficients,
     trapezoid_times,
 )
-from link.errors import UserError
-from link.vehicle import GRAVITY_MPS2, load_vehicle
-from link.world import load_world
+from model.errors import UserError
+from model.vehicle import GRAVITY_MPS2, load_vehicle
+from model.world import load_world
 
 WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
 

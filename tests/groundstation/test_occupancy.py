@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from groundstation.planning.occupancy import OccupancyGrid, segment_box_distance, segments_clearance
-from link.world import World
+from model.world import World
 
 
 def world_with(blocks, bounds=(0.0, 4.0, 0.0, 3.0, 0.0, 2.0)) -> World:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from link.cli import main
+from cfstack.cli import main
 
 WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
 
@@ -154,7 +154,7 @@ def test_real_process_prints_no_traceback(tmp_path):
     path = tmp_path / "truncated.json"
     path.write_text(BAD_WORLDS["truncated"])
     proc = subprocess.run(
-        [sys.executable, "-m", "link.cli", "plan", str(path)], capture_output=True, text=True, timeout=60
+        [sys.executable, "-m", "cfstack.cli", "plan", str(path)], capture_output=True, text=True, timeout=60
     )
     assert proc.returncode == 2
     assert proc.stdout == "" and len(proc.stderr.splitlines()) == 1 and "not valid JSON" in proc.stderr

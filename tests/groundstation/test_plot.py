@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cfstack.cli import main as cfstack_main
 from groundstation import plot
 from groundstation.logread import STATE_COLUMNS, read_log
-from link.cli import main as cfstack_main
-from link.errors import UserError
+from model.errors import UserError
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 MIN_PNG_BYTES = 10_000  # a blank 1100x700 canvas compresses to a few kB; a real plot is well above
@@ -247,17 +247,6 @@ def test_course_world_renders(tmp_path):
     out = tmp_path / "trajectory_3d.png"
     plot._save(figure, out)
     assert out.read_bytes()[:8] == PNG_MAGIC and out.stat().st_size > MIN_PNG_BYTES
-
-
-def test_attitude_command_angles_follow_the_quaternion():
-    half = math.radians(20.0) / 2
-    q_wxyz = np.array([[math.cos(half), math.sin(half), 0, 0],  # roll +20 deg about body x
-                       [math.cos(half), 0, math.sin(half), 0],  # pitch +20 deg about y
-                       [math.cos(half), 0, 0, math.sin(half)],  # yaw +20 deg about z (up)
-                       [np.nan] * 4])
-    angles = plot._quat_to_roll_pitch_yaw_deg(q_wxyz)
-    np.testing.assert_allclose(angles[:3], 20.0 * np.eye(3), atol=1e-9)
-    assert np.isnan(angles[3]).all()
 
 
 def test_commands_show_attitude_when_moments_are_empty(tmp_path):

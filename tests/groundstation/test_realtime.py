@@ -34,12 +34,12 @@ def realtime_flight(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("realtime")
     radio = radio_profile(tmp, "fixed_latency", latency_s=LATENCY_S)
     endpoint, prefix = f"tcp/127.0.0.1:{free_port()}", f"r{uuid.uuid4().hex[:8]}"
-    emulator = subprocess.Popen([sys.executable, "-m", "link", "emulator", "--listen", endpoint, "--id", prefix,
+    emulator = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--id", prefix,
                                  "--clock", "realtime", "--radio", str(radio), "--quiet"],
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                 text=True)
     try:
-        run = subprocess.run([sys.executable, "-m", "link", "groundstation", "--connect", endpoint, "--id", prefix,
+        run = subprocess.run([sys.executable, "-m", "cfstack", "groundstation", "--connect", endpoint, "--id", prefix,
                               "--clock", "realtime", "--mode", "moments", "--rate", str(RATE_HZ),
                               "--latency-compensation", "--trajectory", "hover", "--json", "--log", str(tmp / "log")],
                              capture_output=True, text=True, timeout=180, stdin=subprocess.DEVNULL)

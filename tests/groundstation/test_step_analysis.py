@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import brentq
 
 from groundstation.step_analysis import analyze_step, damping_ratio_from_overshoot, plot_step
-from link.errors import UserError
+from model.errors import UserError
 
 DT = 1e-3
 

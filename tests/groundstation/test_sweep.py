@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pytest
 
+from cfstack.cli import main as cfstack_main
 from groundstation import sweep
-from link.cli import main as cfstack_main
-from link.config import Params
-from link.errors import ConfigError, UserError
-from simulator.radio import load_radio_profile
+from model.config import Params
+from model.errors import ConfigError, UserError
+from model.radio import load_radio_profile, radio_profile_path
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -89,9 +89,9 @@ def test_bad_options_through_cfstack_give_exit_code_2_and_one_line(capsys):
 
 def test_unknown_base_profile_is_a_config_error():
     with pytest.raises(ConfigError, match="nosuch"):
-        sweep.base_profile_path("nosuch")
+        radio_profile_path("nosuch")
     with pytest.raises(ConfigError, match="not found"):
-        sweep.base_profile_path("/nonexistent/radio.toml")
+        radio_profile_path("/nonexistent/radio.toml")
 
 
 # ------------------------------------------------------------------------------------------ profiles
@@ -100,7 +100,7 @@ def test_unknown_base_profile_is_a_config_error():
 @pytest.mark.parametrize("base_name", ["ideal", "crazyradio", "harsh"])
 @pytest.mark.parametrize("latency_ms, loss_pct", [(0.0, 0.0), (40.0, 20.0), (2.5, 100.0)])
 def test_generated_profile_loads_and_changes_only_latency_and_iid_loss(tmp_path, base_name, latency_ms, loss_pct):
-    base = sweep.load_base_profile(sweep.base_profile_path(base_name))
+    base = sweep.load_base_profile(radio_profile_path(base_name))
     path = sweep.write_cell_profile(base, latency_ms, loss_pct, tmp_path)
     generated = load_radio_profile(path)
     original = load_radio_profile(base_name)
@@ -121,7 +121,7 @@ def test_toml_writer_round_trips_nested_tables_and_awkward_strings():
 
 
 def test_profile_file_names_differ_per_cell(tmp_path):
-    base = sweep.load_base_profile(sweep.base_profile_path("ideal"))
+    base = sweep.load_base_profile(radio_profile_path("ideal"))
     paths = {sweep.write_cell_profile(base, lat, loss, tmp_path) for lat in (0.0, 10.0, 100.0) for loss in (0.0, 10.0)}
     assert len(paths) == 6
 
@@ -290,11 +290,12 @@ def test_base_profile_is_read_without_importing_the_simulator():
     import subprocess
     import sys
 
-    code = ("import sys; from groundstation import sweep; p = sweep.base_profile_path('lab'); "
+    code = ("import sys; from groundstation import sweep; from model.radio import radio_profile_path; "
+            "p = radio_profile_path('lab'); "
             "sweep.load_base_profile(p); print(p.name, 'simulator' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["lab.toml", "False"]
-    assert Params.load(sweep.base_profile_path("lab")).string("name") == "lab"
+    assert Params.load(radio_profile_path("lab")).string("name") == "lab"
 
 
 def _started_flights(monkeypatch) -> list:
@@ -312,7 +313,7 @@ def _started_flights(monkeypatch) -> list:
 def _one_cell(tmp_path, *extra: str) -> tuple[sweep.SweepOptions, list]:
     opts = sweep.parse_options(["--mode", "attitude", "--latency", "0", "--loss", "0", "--out", str(tmp_path),
                                 *extra])
-    base = sweep.load_base_profile(sweep.base_profile_path("ideal"))
+    base = sweep.load_base_profile(radio_profile_path("ideal"))
     cell = sweep.grid_cells(opts)[0]
     return opts, [(cell, sweep.write_cell_profile(base, 0.0, 0.0, tmp_path / "profiles"))]
 

@@ -129,9 +129,10 @@ def _transfer(sender: Transport, receiver: Transport, frames: list[bytes],
 
 @contextlib.contextmanager
 def _run_router(port: int) -> Iterator[subprocess.Popen]:
-    """A zenoh router listening on tcp/127.0.0.1:PORT in a child process (link.zenoh_session's main)."""
+    """A zenoh router listening on tcp/127.0.0.1:PORT in a child process (link.transports.zenoh_session's main)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "link.zenoh_session", "--mode", "router", "--listen", f"tcp/127.0.0.1:{port}"],
+        [sys.executable, "-m", "link.transports.zenoh_session", "--mode", "router",
+         "--listen", f"tcp/127.0.0.1:{port}"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         ready, _, _ = select.select([proc.stdout], [], [], 15.0)

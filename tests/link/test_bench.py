@@ -1,4 +1,4 @@
-"""`cfstack link-bench` (link.bench): one tiny real run (two processes, every path) read back from its
+"""`cfstack link-bench` (cfstack.link_bench): one tiny real run (two processes, every path) read back from its
 table, and the PASS/MISS arithmetic on made-up numbers. Speed itself is not asserted here."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from contextlib import redirect_stderr, redirect_stdout
 
 import pytest
 
-from link.bench import (
+from cfstack.link_bench import (
     PATHS,
     ROUND_TRIP_RATIO_TARGET,
     THROUGHPUT_TARGET_FPS,
@@ -20,10 +20,10 @@ from link.bench import (
     command,
     format_report,
 )
-from link.codec import ActuatorLimits, Codec, sample_messages
 from link.keys import GROUND_STATION_SYSTEM_ID
+from link.mavlink.codec import ActuatorLimits, Codec, sample_messages
 from link.messages import ImuSample, ThrustMoment
-from link.vehicle import load_vehicle
+from model.vehicle import load_vehicle
 
 COUNT, FRAMES, BLOCKS = 20, 400, 2
 NUMBER = r"([\d,]+(?:\.\d+)?|nan)"

@@ -1,4 +1,4 @@
-"""link.codec: frame conventions, MAVLink field semantics (checked with pymavlink's own decoder),
+"""link.mavlink.codec: frame conventions, MAVLink field semantics (checked with pymavlink's own decoder),
 round trips of every field of every message, interoperability with pymavlink, parser drop rules."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mav
 from scipy.spatial.transform import Rotation
 
-from link.codec import (
+from link.mavlink.codec import (
     ODOMETRY_QUALITY_TRUTH,
     Q_FLU_FROM_FRD,
     Q_NED_FROM_ENU,
@@ -27,6 +27,7 @@ from link.codec import (
     quat_ned_frd_to_enu_flu,
     sample_messages,
 )
+from link.mavlink.signing import Signing
 from link.messages import (
     AttitudeTarget,
     BatteryStatus,
@@ -41,9 +42,8 @@ from link.messages import (
     VehicleCommand,
     VehicleMode,
 )
-from link.rotation import quat_multiply
-from link.signing import Signing
-from link.vehicle import GRAVITY_MPS2, load_vehicle
+from model.frames import quat_multiply
+from model.vehicle import GRAVITY_MPS2, load_vehicle
 
 LIMITS = ActuatorLimits(0.6, (0.01, 0.012, 0.002))
 # Independent statements of the frame changes, as matrices (column = where each source axis goes)

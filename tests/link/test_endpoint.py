@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import pytest
 
-from link.codec import ActuatorLimits, Codec, FrameParser, sample_messages
 from link.endpoint import Endpoint
+from link.mavlink.codec import ActuatorLimits, Codec, FrameParser, sample_messages
+from link.mavlink.signing import Signing
+from link.mavlink.tlog import TlogWriter, read_tlog
 from link.messages import Heartbeat, ImuSample, TimeSync, VehicleMode
-from link.signing import Signing
 from link.stats import TimeSyncTracker
-from link.tlog import TlogWriter, read_tlog
 from link.transports.base import Transport
 from link.transports.mem import MemTransport
 

@@ -1,4 +1,4 @@
-"""Property tests of link.codec.FrameParser on hostile input (hypothesis, derandomized for CI).
+"""Property tests of link.mavlink.codec.FrameParser on hostile input (hypothesis, derandomized for CI).
 
 Properties, for every input: feed() never raises; every delivered frame is byte-for-byte a frame that
 was encoded; genuine frames behind garbage, truncated or corrupted frames are still found; and every
@@ -13,9 +13,9 @@ import math
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from link.codec import ActuatorLimits, Codec, FrameParser, sample_messages
+from link.mavlink.codec import ActuatorLimits, Codec, FrameParser, sample_messages
+from link.mavlink.signing import Signing
 from link.messages import ImuSample, MocapPose, TimeSync
-from link.signing import Signing
 
 LIMITS = ActuatorLimits(0.6, (0.01, 0.01, 0.002))
 KEY = bytes(range(32))

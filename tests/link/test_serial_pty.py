@@ -73,7 +73,7 @@ def test_frames_between_garbage_come_through_and_the_parser_recovers_them(pty_pa
     assert b"".join(chunks) == stream  # raw bytes, garbage included, in order
     assert transport.stats.bytes_received == len(stream)
 
-    codec = pytest.importorskip("link.codec", reason="link.codec (FrameParser) not written yet")
+    codec = pytest.importorskip("link.mavlink.codec", reason="link.mavlink.codec (FrameParser) not written yet")
     parser = codec.FrameParser()
     decoded = [item for chunk in chunks for item in parser.feed(chunk)]
     assert [item.frame for item in decoded] == frames

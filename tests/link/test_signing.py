@@ -1,4 +1,4 @@
-"""link.signing: key material, the MAVLink signature definition, interoperability with pymavlink, and
+"""link.mavlink.signing: key material, the MAVLink signature definition, interoperability with pymavlink, and
 rejection of unsigned, forged and replayed frames."""
 
 from __future__ import annotations
@@ -12,10 +12,8 @@ import time
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from link.codec import Codec, FrameParser
-from link.errors import UserError
-from link.messages import Heartbeat, RadioStatus, TimeSync
-from link.signing import (
+from link.mavlink.codec import Codec, FrameParser
+from link.mavlink.signing import (
     ENV_VAR,
     MAVLINK_EPOCH_UNIX_S,
     Signing,
@@ -25,6 +23,8 @@ from link.signing import (
     signing_from_args,
     signing_from_options,
 )
+from link.messages import Heartbeat, RadioStatus, TimeSync
+from model.errors import UserError
 
 KEY = bytes(range(100, 132))
 OTHER_KEY = bytes(32)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from link.codec import Codec, FrameParser
+from link.mavlink.codec import Codec, FrameParser
 from link.messages import TimeSync
 from link.stats import LinkStats, SequenceTracker, TimeSyncTracker
 

@@ -1,4 +1,4 @@
-"""link.tlog: the record format, read back by pymavlink's own tlog reader, and survival of SIGKILL."""
+"""link.mavlink.tlog: the record format, read back by pymavlink's own tlog reader, and survival of SIGKILL."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ os.environ["MAVLINK20"] = "1"  # mavutil picks its dialect from this at import
 import pytest  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
-from link.codec import Codec  # noqa: E402
-from link.errors import UserError  # noqa: E402
+from link.mavlink.codec import Codec  # noqa: E402
+from link.mavlink.signing import Signing  # noqa: E402
+from link.mavlink.tlog import TlogWriter, read_tlog  # noqa: E402
 from link.messages import Heartbeat, ImuSample, TimeSync, VehicleMode  # noqa: E402
-from link.signing import Signing  # noqa: E402
-from link.tlog import TlogWriter, read_tlog  # noqa: E402
+from model.errors import UserError  # noqa: E402
 
 
 def pymavlink_read(path):
@@ -96,9 +96,9 @@ def test_errors(tmp_path):
 
 WRITER = textwrap.dedent("""
     import sys
-    from link.codec import Codec
+    from link.mavlink.codec import Codec
     from link.messages import ImuSample
-    from link.tlog import TlogWriter
+    from link.mavlink.tlog import TlogWriter
     codec = Codec(1)
     tlog = TlogWriter(sys.argv[1], clock=lambda: 0.0)
     i = 0

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import pytest
 
-from link.errors import UserError
 from link.transports import Transport, TransportStats, open_transport
-from link.zenoh_session import ZenohSettings, shared_session
+from link.transports.zenoh_session import ZenohSettings, shared_session
+from model.errors import UserError
 
 SCHEMES = ["mem", "udp", "serial", "zenoh"]
 # Nominal for a pty (it moves bytes as fast as they are read), real for a USB UART.

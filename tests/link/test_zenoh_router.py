@@ -13,15 +13,15 @@ import time
 
 import pytest
 
-from link.errors import UserError
 from link.transports import open_transport
-from link.zenoh_session import (
+from link.transports.zenoh_session import (
     ZenohSettings,
     add_zenoh_arguments,
     session_users,
     shared_session,
     zenoh_options_from_args,
 )
+from model.errors import UserError
 
 # The far end, in its own process: a client of the router that sends every frame back reversed
 # (so an answer cannot be our own frame looping back) until it receives b"stop".

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from link.transports import open_transport
-from link.zenoh_session import ZenohSettings, shared_session
+from link.transports.zenoh_session import ZenohSettings, shared_session
 
 
 @pytest.fixture

@@ -11,12 +11,11 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
-from link.rotation import quat_multiply
-from link.vehicle import GRAVITY_MPS2, load_vehicle
-from link.world import World
+from model.frames import quat_from_euler_zyx, quat_multiply, rotation_angle_between, yaw_of
+from model.vehicle import GRAVITY_MPS2, load_vehicle
+from model.world import World
 from simulator.dynamics import QuadrotorDynamics
 from simulator.firmware import load_firmware_params
-from simulator.rotation import quat_from_euler_zyx, rotation_angle_between, yaw_of
 
 CONTACT = load_firmware_params().contact
 

@@ -17,15 +17,15 @@ import time
 import pytest
 
 from link.clock import NS_PER_S, ClockAck, unpack_tick
-from link.codec import ActuatorLimits, Codec
-from link.errors import UserError
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.mavlink.codec import ActuatorLimits, Codec
 from link.messages import CommandKind, ThrustMoment, VehicleCommand
 from link.transports import open_transport
-from link.vehicle import load_mocap_room, load_vehicle
+from model.errors import UserError
+from model.radio import load_radio_profile
+from model.vehicle import load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
 from simulator.firmware import load_firmware_params
-from simulator.radio import load_radio_profile
 
 VEHICLE = load_vehicle("crazyflie")
 GROUND = Codec(GROUND_STATION_SYSTEM_ID, limits=ActuatorLimits.from_vehicle(VEHICLE))
@@ -91,7 +91,7 @@ def bad_invocations(tmp_path) -> dict[str, list[str]]:
     }
 
 
-# Through a real `python -m link emulator` process: one case of each kind (the others run in-process
+# Through a real `python -m cfstack emulator` process: one case of each kind (the others run in-process
 # below, through the same `cfstack` dispatcher, to keep the suite fast on a busy machine).
 SUBPROCESS_CASES = ("unknown option", "negative seed", "broken world json", "radio file missing a table")
 
@@ -107,7 +107,7 @@ def check_one_line_error(name: str, code: int, out: str, err: str) -> str | None
 
 def test_bad_files_and_options_give_one_line_and_exit_code_2_from_the_process(tmp_path):
     cases = bad_invocations(tmp_path)
-    procs = {name: subprocess.Popen([sys.executable, "-m", "link", "emulator", "--quiet", *cases[name]],
+    procs = {name: subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--quiet", *cases[name]],
                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                     text=True)
              for name in SUBPROCESS_CASES}
@@ -125,7 +125,7 @@ def test_bad_files_and_options_give_one_line_and_exit_code_2_from_the_process(tm
 
 
 def test_every_bad_file_and_option_gives_one_line_and_exit_code_2(tmp_path, capsys, monkeypatch):
-    from link.cli import main
+    from cfstack.cli import main
 
     monkeypatch.setattr(logging, "basicConfig", lambda **_: None)  # keep this process's logging as it is
     failures = []

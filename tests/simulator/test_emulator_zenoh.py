@@ -1,6 +1,6 @@
 """The emulator process over zenoh, against a minimal scripted ground station in this process.
 
-The emulator runs as `python -m link emulator --connect <our endpoint>`; `Responder` joins its lockstep
+The emulator runs as `python -m cfstack emulator --connect <our endpoint>`; `Responder` joins its lockstep
 clock for one vehicle, waits for each tick's frames (the counts the tick announces), sends scripted
 uplink messages and acknowledges. Checked: startup time, clean stop on SIGTERM / Ctrl-C, the clock
 standing still without acks, byte-identical downlink for equal seeds (with and without lookahead),
@@ -25,8 +25,8 @@ from contextlib import contextmanager
 import pytest
 
 from link.clock import NS_PER_S, ClockAck, ClockTick, unpack_tick
-from link.codec import ActuatorLimits, Codec, FrameParser
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
 from link.messages import (
     BatteryStatus,
     CommandKind,
@@ -41,7 +41,7 @@ from link.messages import (
 )
 from link.stats import LinkStats
 from link.transports import open_transport
-from link.vehicle import GRAVITY_MPS2, load_vehicle
+from model.vehicle import GRAVITY_MPS2, load_vehicle
 from simulator.firmware import load_firmware_params
 
 VEHICLE = load_vehicle("crazyflie")
@@ -230,8 +230,8 @@ class Responder:
 
 @contextmanager
 def emulator(endpoint: str, *args: str):
-    """`python -m link emulator` connected to our endpoint; yields the process, stops it at the end."""
-    cmd = [sys.executable, "-m", "link", "emulator", "--connect", endpoint, "--id", PREFIX, "--quiet", *args]
+    """`python -m cfstack emulator` connected to our endpoint; yields the process, stops it at the end."""
+    cmd = [sys.executable, "-m", "cfstack", "emulator", "--connect", endpoint, "--id", PREFIX, "--quiet", *args]
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)
     try:

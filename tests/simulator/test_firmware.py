@@ -19,10 +19,10 @@ from link.messages import (
     VehicleCommand,
     VehicleMode,
 )
-from link.vehicle import load_vehicle
+from model.frames import quat_from_euler_zyx, rotation_angle_between
+from model.vehicle import load_vehicle
 from simulator.firmware import load_firmware_params
 from simulator.mixer import Mixer
-from simulator.rotation import quat_from_euler_zyx, rotation_angle_between
 from simulator.vehicle_sim import SimVehicle
 
 CF = load_vehicle("crazyflie")

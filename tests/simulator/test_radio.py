@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 from scipy.stats import truncnorm
 
-from link.errors import ConfigError
 from link.messages import RadioStatus
-from simulator.radio import DropCause, GilbertElliott, RadioChannel, load_radio_profile
+from model.errors import ConfigError
+from model.radio import GilbertElliott, load_radio_profile
+from simulator.radio import DropCause, RadioChannel
 
 SIGMAS = 4.0
 PROFILES = ("ideal", "crazyradio", "lab", "harsh")
-RADIO_DIR = Path(__file__).resolve().parents[2] / "simulator" / "params" / "radio"
+RADIO_DIR = Path(__file__).resolve().parents[2] / "model" / "params" / "radio"
 
 
 def ideal(**changes):

@@ -8,12 +8,11 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from link.messages import ImuSample, MocapPose
-from link.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
-from simulator.rotation import quat_from_euler_zyx, rotation_angle_between
-from simulator.sensors import DRAW_BLOCK, ImuModel, MocapModel, _quat_exp
+from model.frames import quat_from_euler_zyx, rotation_angle_between
+from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
+from simulator.sensors import DRAW_BLOCK, ImuModel, MocapModel
 from simulator.vehicle_sim import SimVehicle
 
 CF = load_vehicle("crazyflie")
@@ -81,14 +80,6 @@ def test_imu_reads_plus_g_on_body_z_at_rest_and_zero_in_free_fall():
     assert resting.mean(axis=0) == pytest.approx([0.0, 0.0, GRAVITY_MPS2], abs=0.1)
     assert falling.mean(axis=0) == pytest.approx([0.0, 0.0, 0.0], abs=0.1)
     assert len(resting) == pytest.approx(2.0 * CF.imu.rate_hz, abs=1)
-
-
-def test_mocap_attitude_errors_are_the_exponential_map_of_their_rotation_vectors():
-    rotvecs = np.random.default_rng(6).normal(0.0, 0.3, (200, 3))
-    rotvecs[0] = 0.0
-    got = _quat_exp(rotvecs)
-    expected = Rotation.from_rotvec(rotvecs).as_quat(scalar_first=True)
-    assert np.allclose(got * np.sign(got[:, :1]), expected * np.sign(expected[:, :1]), atol=1e-12)
 
 
 def test_mocap_noise_matches_the_room():

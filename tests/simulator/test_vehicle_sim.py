@@ -9,8 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from link.config import builtin_path
-from link.errors import ConfigError, UserError, WorldError
 from link.messages import (
     AttitudeTarget,
     BatteryStatus,
@@ -22,10 +20,12 @@ from link.messages import (
     TruthState,
     VehicleMode,
 )
-from link.vehicle import load_mocap_room, load_vehicle
-from link.world import World, load_world
+from model.config import builtin_path
+from model.errors import ConfigError, UserError, WorldError
+from model.frames import quat_from_euler_zyx
+from model.vehicle import load_mocap_room, load_vehicle
+from model.world import World, load_world
 from simulator.firmware import load_firmware_params
-from simulator.rotation import quat_from_euler_zyx
 from simulator.vehicle_sim import SimVehicle
 
 CF = load_vehicle("crazyflie")
@@ -176,7 +176,7 @@ def _edited_copy(tmp_path, source: Path, old: str, new: str) -> Path:
     ("rate_hz = 500.0", "rate_hz = true", "imu.rate_hz: expected a finite number"),
 ])
 def test_bad_vehicle_files_name_the_file_and_field(tmp_path, old, new, field):
-    path = _edited_copy(tmp_path, builtin_path("link", "params/vehicles", "crazyflie"), old, new)
+    path = _edited_copy(tmp_path, builtin_path("model", "params/vehicles", "crazyflie"), old, new)
     with pytest.raises(ConfigError) as err:
         load_vehicle(path)
     assert str(err.value).startswith(str(path)) and field in str(err.value)

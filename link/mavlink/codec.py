@@ -54,7 +54,7 @@ before any conversion) and its `pack` (5.1 us). Rules:
     - zero-truncated payloads are zero-extended (MAVLink 2); payloads longer than this dialect's message
       are accepted and the unknown extension bytes ignored, as the MAVLink C library does; a zero-length
       payload is malformed (the first byte is never truncated) and counts in bad_lengths;
-    - with signing, see link.signing (unsigned_rejected, bad_signatures, replays_rejected);
+    - with signing, see link.mavlink.signing (unsigned_rejected, bad_signatures, replays_rejected);
     - an incomplete frame at the end of a chunk waits for the next chunk (stream semantics), unless
       `feed(..., final=True)` says the chunk was a whole datagram: then it counts in truncated_frames;
     - non-finite numbers decode as they are: checking them is the receiver's job.
@@ -72,6 +72,7 @@ from dataclasses import dataclass, fields
 # The v20 dialect module speaks MAVLink 2 whatever MAVLINK20 says (only mavutil reads that variable).
 from pymavlink.dialects.v20 import common as mav
 
+from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck, Signing
 from link.messages import (
     AttitudeTarget,
     BatteryStatus,
@@ -80,16 +81,14 @@ from link.messages import (
     ImuSample,
     Message,
     MocapPose,
-    Quat,
     RadioStatus,
     ThrustMoment,
     TimeSync,
     TruthState,
-    Vec3,
     VehicleCommand,
     VehicleMode,
 )
-from link.signing import SIGNATURE_BLOCK_LEN, SignatureCheck, Signing
+from model.frames import Quat, Vec3
 
 MAGIC_V2 = 0xFD
 HEADER_LEN = 10
@@ -182,7 +181,7 @@ class ActuatorLimits:
 
     @staticmethod
     def from_vehicle(vehicle) -> ActuatorLimits:
-        """Limits of a link.vehicle.Vehicle: max_thrust_n and max_moment_nm."""
+        """Limits of a model.vehicle.Vehicle: max_thrust_n and max_moment_nm."""
         return ActuatorLimits(float(vehicle.max_thrust_n), tuple(float(m) for m in vehicle.max_moment_nm))
 
 
@@ -636,7 +635,7 @@ class FrameParser:
     def _feed(self, data, final: bool) -> list[tuple]:
         # One loop does framing, CRC and decoding, with no helper calls on the way of a good frame: this
         # runs per frame at 500 Hz-1 kHz, and on the link's round trip right after a wake-up, where every
-        # operation costs several times its hot-loop time (the caches are cold; see link.bench).
+        # operation costs several times its hot-loop time (the caches are cold; see cfstack.link_bench).
         c = self.counters
         c.bytes_in += len(data)
         if self._pending:

@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from link.codec import (
+from link.mavlink.codec import (
     IFLAG_SIGNED,
     MAGIC_V2,
     MIN_FRAME_LEN,
@@ -27,7 +27,7 @@ from link.codec import (
     Decoded,
     FrameParser,
 )
-from link.errors import UserError
+from model.errors import UserError
 
 _TIMESTAMP = struct.Struct(">Q")
 

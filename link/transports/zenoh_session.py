@@ -5,7 +5,7 @@ the flags `add_zenoh_arguments` adds to a command (`--mode`, `--connect`, `--lis
 `--scouting`).
 Gives out: an opened zenoh.Session shared (reference-counted) by every user asking for the same
 settings, closed when the last user releases it (or at interpreter exit); ZenohSettings; a
-`python -m link.zenoh_session --mode router --listen tcp/127.0.0.1:7447` router for tests and labs.
+`python -m link.transports.zenoh_session --mode router --listen tcp/127.0.0.1:7447` router for tests and labs.
 
 Defaults (our choice, not zenoh's): peer mode, multicast scouting OFF, so a process only talks to the
 endpoints it is given. A config file (JSON5, zenoh's own format) is loaded first; any option given
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import zenoh
 
-from link.errors import UserError
+from model.errors import UserError
 
 DEFAULT_MODE = "peer"
 MODES = ("peer", "client", "router")
@@ -277,7 +277,7 @@ def zenoh_options_from_args(args: argparse.Namespace) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------------
-# A stand-alone session, e.g. a router: `python -m link.zenoh_session --mode router --listen ...`.
+# A stand-alone session, e.g. a router: `python -m link.transports.zenoh_session --mode router --listen ...`.
 
 
 def serve(settings: ZenohSettings, stop: threading.Event) -> None:
@@ -291,7 +291,7 @@ def serve(settings: ZenohSettings, stop: threading.Event) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m link.zenoh_session",
+        prog="python -m link.transports.zenoh_session",
         description="Run a zenoh session (e.g. a router) until SIGTERM or Ctrl-C.")
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
@@ -301,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         serve(ZenohSettings.from_options(**zenoh_options_from_args(args)), stop)
     except UserError as err:
-        print(f"link.zenoh_session: {err}", file=sys.stderr)
+        print(f"link.transports.zenoh_session: {err}", file=sys.stderr)
         return err.exit_code
     return 0
 

@@ -12,13 +12,13 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
-from link.errors import ConfigError
+from model.errors import ConfigError
 
 SUPPORTED_SCHEMA = 1
 
 
 def builtin_path(package: str, folder: str, name: str) -> Path:
-    """Path of a shipped parameter file, e.g. builtin_path("link", "params/vehicles", "crazyflie")."""
+    """Path of a shipped parameter file, e.g. builtin_path("model", "params/vehicles", "crazyflie")."""
     return Path(str(resources.files(package).joinpath(folder, f"{name}.toml")))
 
 

@@ -17,7 +17,7 @@ Measured:
 - one-way throughput (frames/s): the sender encodes and sends `--frames` ImuSample frames back to back,
   the child decodes and counts them; rate = frames received / (last arrival - first send). Both times
   are CLOCK_MONOTONIC (time.monotonic), which Linux shares between processes.
-- median encode and decode cost per message type, signing off and on (link.codec.measure_codec_costs).
+- median encode and decode cost per message type, signing off and on (link.mavlink.codec.measure_codec_costs).
 Targets (issue "The link", section Numbers): the full zenoh link adds at most 50 % to the bare zenoh
 round trip (p50 ratio <= 1.5); full zenoh link throughput >= 20 000 frames/s.
 
@@ -62,16 +62,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import zenoh
 
-from link.codec import ActuatorLimits, Codec, measure_codec_costs, sample_messages
 from link.endpoint import Endpoint
-from link.errors import UserError
 from link.keys import DEFAULT_PREFIX, GROUND_STATION_SYSTEM_ID
+from link.mavlink.codec import ActuatorLimits, Codec, measure_codec_costs, sample_messages
 from link.messages import CommandKind, ImuSample, Message, ThrustMoment, VehicleCommand
 from link.transports import open_transport
 from link.transports.udp import DEFAULT_SOCKET_BUFFER_BYTES, MAX_DATAGRAM_BYTES
+from link.transports.zenoh_session import ZenohSettings, acquire_session, release_session
 from link.transports.zenoh_transport import DEFAULT_EXPRESS, DEFAULT_QUEUE_FRAMES, MATCHING_POLL_S
-from link.vehicle import load_vehicle
-from link.zenoh_session import ZenohSettings, acquire_session, release_session
+from model.errors import UserError
+from model.vehicle import load_vehicle
 
 # Targets of issue "The link", section Numbers.
 ROUND_TRIP_RATIO_TARGET = 1.5  # full zenoh link p50 / bare zenoh p50
@@ -129,7 +129,7 @@ def _limits() -> ActuatorLimits:
 
 
 def _template(kind: type) -> Message:
-    """The typical message of that kind (link.codec.sample_messages: a hovering Crazyflie)."""
+    """The typical message of that kind (link.mavlink.codec.sample_messages: a hovering Crazyflie)."""
     return next(message for message in sample_messages() if type(message) is kind)
 
 
@@ -312,7 +312,7 @@ def _wait_for_matching(side: Side) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------
-# The echo side (child process): `python -m link.bench --echo ENDPOINT PREFIX`.
+# The echo side (child process): `python -m cfstack.link_bench --echo ENDPOINT PREFIX`.
 
 
 def _exit_with_parent() -> None:
@@ -436,7 +436,7 @@ class _Child:
     """The echo process and its line protocol (unbuffered reads, so select() sees every line)."""
 
     def __init__(self, endpoint: str, prefix: str):
-        command = [sys.executable, "-m", "link.bench", "--echo", endpoint, prefix]
+        command = [sys.executable, "-m", "cfstack.link_bench", "--echo", endpoint, prefix]
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         self._buffer = b""
         self.phase = 0
@@ -830,7 +830,7 @@ def command(argv: list[str]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m link.bench` / `python benchmarks/link_bench.py`: command() with cfstack's error handling
+    """`python -m cfstack.link_bench` / `python benchmarks/link_bench.py`: command() with cfstack's error handling
     (a UserError is one line on stderr, never a traceback)."""
     try:
         return command(list(sys.argv[1:] if argv is None else argv))

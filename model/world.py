@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from link.errors import WorldError
+from model.errors import WorldError
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Vehicle parameters: the one home of what both the emulator and the ground station know of a vehicle.
 
-Takes in: a vehicle TOML file (built-in names: crazyflie, cf2x; see link/params/vehicles/).
+Takes in: a vehicle TOML file (built-in names: crazyflie, cf2x; see model/params/vehicles/).
 Gives out: `Vehicle` (mass, inertia, rotor geometry and coefficients, limits, IMU noise densities) and
 `MocapRoom` (mocap rate, latency, noise, dropouts, outliers). SI units throughout, body frame FLU.
 """
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from link.config import Params, resolve
+from model.config import Params, resolve
 
 GRAVITY_MPS2 = 9.81  # the course's g (issue 3: "gravity 9.81")
 
@@ -84,7 +84,7 @@ class Vehicle:
 
 
 def load_vehicle(name_or_path: str | Path = "crazyflie") -> Vehicle:
-    path = resolve(name_or_path, "link", "params/vehicles", "vehicle")
+    path = resolve(name_or_path, "model", "params/vehicles", "vehicle")
     p = Params.load(path)
     inertia = p.table("inertia")
     rotors = p.table("rotors")
@@ -143,7 +143,7 @@ class MocapRoom:
 
 
 def load_mocap_room(name_or_path: str | Path = "vicon") -> MocapRoom:
-    p = Params.load(resolve(name_or_path, "link", "params/mocap", "mocap room"))
+    p = Params.load(resolve(name_or_path, "model", "params/mocap", "mocap room"))
     return MocapRoom(
         name=p.string("name"),
         rate_hz=p.number("rate_hz", minimum=1.0),

@@ -1,5 +1,5 @@
 import sys
 
-from link.cli import main
+from cfstack.cli import main
 
 sys.exit(main())

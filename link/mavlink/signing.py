@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterable, Mapping
 from enum import Enum
 from pathlib import Path
 
-from link.errors import UserError
+from model.errors import UserError
 
 ENV_VAR = "CFSTACK_SIGNING_KEY"
 KEY_LEN = 32

@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 from importlib.metadata import entry_points
 
-from link.errors import UserError
+from model.errors import UserError
 
 
 def _commands() -> dict:
