@@ -15,7 +15,7 @@ Equations (lab report section II, paper notation, SI):
     b3_des  = F_des / |F_des|,  a_psi = [cos psi_T, sin psi_T, 0]
     b2_des  = (b3_des x a_psi) / |b3_des x a_psi|,  R_des = [b2_des x b3_des, b2_des, b3_des]
     e_R     = 1/2 vee(R_des^T R - R^T R_des),  e_w = w - w_des
-    u2      = I (-K_R e_R - K_w e_w)                                        [N m]
+    u2      = I (-K_R e_R - K_w e_w)                                        [N m]  (model.attitude_law)
 variant "report": w_des = 0 (as flown in the report).
 variant "full" (Lee, Leok, McClamroch 2010, with Mellinger & Kumar 2011's flat-output rates):
     h_w     = m/|F_des| (j_T - (b3_des . j_T) b3_des)
@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from groundstation.trajectory import FlatOutput
+from model.attitude_law import attitude_moment
 from model.config import Params, resolve
 from model.errors import ConfigError
 from model.frames import quat_normalize, quat_to_rows, rows_to_quat
@@ -151,12 +152,11 @@ class SE3Controller:
                               f"the model mass {self.mass_kg:.4g} kg non-positive")
         self.gains = gains
         self.vehicle = vehicle
-        self._inertia = tuple(np.asarray(vehicle.inertia_kgm2, dtype=float).reshape(9).tolist())
+        self._inertia_diag = tuple(np.diag(vehicle.inertia_kgm2).tolist())  # model.vehicle: diagonal, body FLU
         self._max_thrust_n = float(vehicle.max_thrust_n)
         self._max_moment_nm = tuple(np.asarray(vehicle.max_moment_nm, dtype=float).tolist())
         self._full = self.variant == "full"
         self._position_gains = (*gains.kp, *gains.kd)
-        self._attitude_gains = (*gains.k_r, *gains.k_w)
 
     def update(self, state: ControllerState, ref: FlatOutput) -> ControlOutput:
         """One control step: thrust, moment and desired attitude for the current state and reference."""
@@ -207,8 +207,8 @@ class SE3Controller:
         erx, ery, erz = 0.5 * (m21 - m12), 0.5 * (m02 - m20), 0.5 * (m10 - m01)
 
         wx, wy, wz = as_floats(state.rate_flu_radps)
-        krx, kry, krz, kwx, kwy, kwz = self._attitude_gains
-        i00, i01, i02, i10, i11, i12, i20, i21, i22 = self._inertia
+        e_r = (erx, ery, erz)
+        gains = self.gains
         if self._full and f_norm > _DEGENERATE_NORM and heading_norm > _DEGENERATE_NORM:
             wd, wdb, adb = self._feed_forward(
                 ref, m / f_norm, (ax, ay, heading_norm), (b1x, b1y, b1z), (b2x, b2y, b2z), (b3x, b3y, b3z),
@@ -216,23 +216,15 @@ class SE3Controller:
                  b1x * r00 + b1y * r10 + b1z * r20, b2x * r01 + b2y * r11 + b2z * r21,
                  b3x * r02 + b3y * r12 + b3z * r22))
             ewx, ewy, ewz = wx - wdb[0], wy - wdb[1], wz - wdb[2]
-            # Angular acceleration wanted: PD + R^T R_des w'_des - w x (R^T R_des w_des).
-            alx = -krx * erx - kwx * ewx + adb[0] - (wy * wdb[2] - wz * wdb[1])
-            aly = -kry * ery - kwy * ewy + adb[1] - (wz * wdb[0] - wx * wdb[2])
-            alz = -krz * erz - kwz * ewz + adb[2] - (wx * wdb[1] - wy * wdb[0])
-            # Gyroscopic term w x I w.
-            hx = i00 * wx + i01 * wy + i02 * wz
-            hy = i10 * wx + i11 * wy + i12 * wz
-            hz = i20 * wx + i21 * wy + i22 * wz
-            gx, gy, gz = wy * hz - wz * hy, wz * hx - wx * hz, wx * hy - wy * hx
-        else:
+            # Feed-forward angular acceleration: R^T R_des w'_des - w x (R^T R_des w_des).
+            alpha_ff = (adb[0] - (wy * wdb[2] - wz * wdb[1]), adb[1] - (wz * wdb[0] - wx * wdb[2]),
+                        adb[2] - (wx * wdb[1] - wy * wdb[0]))
+            mx, my, mz = attitude_moment(e_r, (ewx, ewy, ewz), gains.k_r, gains.k_w, self._inertia_diag,
+                                         (wx, wy, wz), alpha_ff)
+        else:  # the lab report's law: w_des = 0, no gyroscopic term
             wd = (0.0, 0.0, 0.0)
             ewx, ewy, ewz = wx, wy, wz
-            alx, aly, alz = -krx * erx - kwx * ewx, -kry * ery - kwy * ewy, -krz * erz - kwz * ewz
-            gx = gy = gz = 0.0
-        mx = i00 * alx + i01 * aly + i02 * alz + gx
-        my = i10 * alx + i11 * aly + i12 * alz + gy
-        mz = i20 * alx + i21 * aly + i22 * alz + gz
+            mx, my, mz = attitude_moment(e_r, (ewx, ewy, ewz), gains.k_r, gains.k_w, self._inertia_diag)
 
         thrust_clipped = _clip(thrust, 0.0, self._max_thrust_n)
         lx, ly, lz = self._max_moment_nm
@@ -240,7 +232,7 @@ class SE3Controller:
         # Positional: keyword arguments make building this frozen dataclass a third slower.
         return ControlOutput(thrust_clipped, moment, rows_to_quat(b1x, b2x, b3x, b1y, b2y, b3y, b1z, b2z, b3z),
                              wd, thrust_clipped != thrust, (moment[0] != mx, moment[1] != my, moment[2] != mz),
-                             (fx, fy, fz), (epx, epy, epz), (evx, evy, evz), (erx, ery, erz), (ewx, ewy, ewz))
+                             (fx, fy, fz), (epx, epy, epz), (evx, evy, evz), e_r, (ewx, ewy, ewz))
 
     @staticmethod
     def _feed_forward(ref: FlatOutput, m_over_f: float, heading: Vec3, b1: Vec3, b2: Vec3, b3: Vec3,

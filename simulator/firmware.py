@@ -45,6 +45,7 @@ from link.messages import (
     VehicleCommand,
     VehicleMode,
 )
+from model.attitude_law import attitude_error, attitude_moment
 from model.config import Params, resolve
 from model.frames import (
     Quat,
@@ -336,23 +337,11 @@ class Firmware:
         return speeds
 
     def attitude_moments(self, attitude_des: Quat, rates_des: Vec3, body: BodyState) -> Vec3:
-        """M = I (-K_R e_R - K_w (w - w_des)) + w x I w (N m, body FLU)."""
-        # q_e = q_des^* (x) q, written out; e_R = 2 q_e,w q_e,xyz
-        a0, a1, a2, a3 = attitude_des
-        q0, q1, q2, q3 = body.attitude_wxyz
-        s = 2.0 * (a0 * q0 + a1 * q1 + a2 * q2 + a3 * q3)
-        ex = s * (a0 * q1 - a1 * q0 - a2 * q3 + a3 * q2)
-        ey = s * (a0 * q2 + a1 * q3 - a2 * q0 - a3 * q1)
-        ez = s * (a0 * q3 - a1 * q2 + a2 * q1 - a3 * q0)
-        wx, wy, wz = body.rate_flu_radps
-        krx, kry, krz = self.params.k_r_per_s2
-        kwx, kwy, kwz = self.params.k_w_per_s
-        ixx, iyy, izz = self._inertia
-        return (
-            ixx * (-krx * ex - kwx * (wx - rates_des[0])) + (izz - iyy) * wy * wz,
-            iyy * (-kry * ey - kwy * (wy - rates_des[1])) + (ixx - izz) * wz * wx,
-            izz * (-krz * ez - kwz * (wz - rates_des[2])) + (iyy - ixx) * wx * wy,
-        )
+        """M = I (-K_R e_R - K_w (w - w_des)) + w x I w (N m, body FLU): model.attitude_law."""
+        w = body.rate_flu_radps
+        e_w = (w[0] - rates_des[0], w[1] - rates_des[1], w[2] - rates_des[2])
+        return attitude_moment(attitude_error(attitude_des, body.attitude_wxyz), e_w, self.params.k_r_per_s2,
+                               self.params.k_w_per_s, self._inertia, w)
 
     def _follow_attitude(self, thrust_n: float, attitude_des: Quat, rates_des: Vec3,
                          body: BodyState) -> tuple[float, ...]:
