@@ -67,6 +67,7 @@ from link.keys import DEFAULT_PREFIX, GROUND_STATION_SYSTEM_ID
 from link.mavlink.codec import ActuatorLimits, Codec, measure_codec_costs, sample_messages
 from link.messages import CommandKind, ImuSample, Message, ThrustMoment, VehicleCommand
 from link.transports import open_transport
+from link.transports.base import free_loopback_port
 from link.transports.udp import DEFAULT_SOCKET_BUFFER_BYTES, MAX_DATAGRAM_BYTES
 from link.transports.zenoh_session import ZenohSettings, acquire_session, release_session
 from link.transports.zenoh_transport import DEFAULT_EXPRESS, DEFAULT_QUEUE_FRAMES, MATCHING_POLL_S
@@ -104,12 +105,6 @@ PARENT_CHECK_S = 0.5  # how often the child checks that its parent is still aliv
 
 def _progress(text: str) -> None:
     print(f"link-bench: {text}", file=sys.stderr, flush=True)
-
-
-def _free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def _stop_token(phase: int) -> bytes:
@@ -655,7 +650,7 @@ def run_bench(count: int = DEFAULT_COUNT, frames: int = DEFAULT_FRAMES, blocks: 
     blocks = min(blocks, count)
     count = math.ceil(count / blocks) * blocks
     request_bytes, reply_bytes = _frame_sizes()
-    endpoint = f"tcp/127.0.0.1:{_free_tcp_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
     prefix = f"{DEFAULT_PREFIX}/bench/{os.getpid()}"
     settings = ZenohSettings.from_options("", listen=[endpoint])
     progress(f"starting the echo process (zenoh peer on {endpoint})")

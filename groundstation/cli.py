@@ -14,7 +14,6 @@ import dataclasses
 import logging
 import math
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -29,6 +28,7 @@ from groundstation.step_analysis import analyze_step, plot_step
 from groundstation.trajectories.basic import Step, load_trajectory_params, make_builtin
 from link.keys import DEFAULT_PREFIX
 from link.mavlink.signing import add_signing_arguments, signing_from_args
+from link.transports.base import free_loopback_port
 from link.transports.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
 from model.errors import UserError
 from model.vehicle import load_vehicle
@@ -141,12 +141,6 @@ class FlightFailed(UserError):
     exit_code = 1
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _die_with_parent() -> None:
     """In the child: ask Linux to SIGTERM it when the ground station dies, however it dies."""
     try:
@@ -162,7 +156,7 @@ class EmulatorChild:
     """`cfstack emulator` as a child process on a private loopback zenoh endpoint."""
 
     def __init__(self, args, world_path: str | None, airborne: bool, clock: str):
-        port = _free_port()
+        port = free_loopback_port()
         self.endpoint = f"tcp/127.0.0.1:{port}"
         cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
                "--radio", args.radio, "--seed", str(args.seed), "--id", args.prefix,

@@ -17,6 +17,7 @@ Contract every transport meets (tests/link/test_transport_contract.py runs it on
 from __future__ import annotations
 
 import abc
+import socket
 from dataclasses import dataclass
 
 
@@ -75,3 +76,12 @@ class Transport(abc.ABC):
 
     def describe(self) -> str:
         return f"{self.scheme}:{self.address}"
+
+
+def free_loopback_port(kind: int = socket.SOCK_STREAM) -> int:
+    """A port on 127.0.0.1 (TCP, or UDP with socket.SOCK_DGRAM) that nothing is bound to right now: bind to
+    port 0, read the kernel's choice back, release it. For private loopback endpoints (an emulator child,
+    tests, benchmarks); another process may take it before it is used, which is rare on a test machine."""
+    with socket.socket(socket.AF_INET, kind) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]

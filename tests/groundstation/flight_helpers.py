@@ -1,23 +1,15 @@
-"""What the flight tests that run `cfstack` programs share: a free loopback port for a zenoh endpoint,
-and radio profile files derived from the shipped `ideal` profile (fixed latency, i.i.d. and bursty loss).
-Imported by tests in this folder (sys.path), like trajectory_checks and reference_paths."""
+"""What the flight tests that run `cfstack` programs share: radio profile files derived from the shipped
+`ideal` profile (fixed latency, i.i.d. and bursty loss). Imported by tests in this folder (sys.path), like
+trajectory_checks and reference_paths."""
 
 from __future__ import annotations
 
-import socket
 import tomllib
 from pathlib import Path
 
 from groundstation.sweep import dump_toml
 
 RADIO_DIR = Path(__file__).resolve().parents[2] / "model" / "params" / "radio"
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on right now."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def radio_profile(folder: Path, name: str, latency_s: float = 0.0, loss: float = 0.0,

@@ -17,15 +17,11 @@ from model.world import World, load_world
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from reference_paths import dijkstra_length  # noqa: E402
-
-WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
+from testsupport import shared_world  # noqa: E402
 
 
 def course_world(name: str) -> World:
-    path = WORLDS / name
-    if not path.is_file():
-        pytest.skip(f"course world {path} not found (../shared is absent)")
-    return load_world(path)
+    return load_world(shared_world(name.removesuffix(".json")))
 
 
 def densify(path: np.ndarray, spacing_m: float = 1e-3) -> np.ndarray:

@@ -47,7 +47,7 @@ from simulator.firmware import load_firmware_params
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from flight_helpers import free_port  # noqa: E402
+from testsupport import free_port  # noqa: E402
 
 VEHICLE = load_vehicle("crazyflie")
 LIMITS = ActuatorLimits.from_vehicle(VEHICLE)

@@ -25,7 +25,7 @@ from model.vehicle import load_vehicle
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from flight_helpers import free_port  # noqa: E402
+from testsupport import free_port  # noqa: E402
 
 SUMMARY_KEYS = {"result", "reached_goal", "collided", "min_clearance_m", "flight_time_s", "rms_tracking_error_m",
                 "max_tracking_error_m", "final_position_error_m", "estimator", "link", "sim_time_s",

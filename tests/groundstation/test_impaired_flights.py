@@ -12,19 +12,15 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from flight_helpers import radio_profile  # noqa: E402
+from testsupport import SHARED_WORLDS, shared_world_params, shared_worlds_present  # noqa: E402
 
-WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
-LAB_MAZES = tuple(sorted(p.stem for p in WORLDS.glob("test_lab_*.json")) +
-                  sorted(p.stem for p in WORLDS.glob("maze_20*.json"))) if WORLDS.is_dir() else ()
+LAB_MAZES = shared_world_params("test_lab_*.json", "maze_20*.json")
 PROFILES = ("lab", "harsh", "loss30")
 CONCURRENT_FLIGHTS = 3
 
-pytestmark = pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
-
-
 def fly(world: str, radio: str, log: Path) -> tuple[dict | None, str]:
-    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(WORLDS / f"{world}.json"), "--mode", "attitude",
-                          "--radio", radio, "--seed", "5", "--json", "--log", str(log)],
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(SHARED_WORLDS / f"{world}.json"),
+                          "--mode", "attitude", "--radio", radio, "--seed", "5", "--json", "--log", str(log)],
                          capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
     return (json.loads(run.stdout) if run.stdout.strip() else None), run.stderr[-1500:]
 
@@ -33,7 +29,7 @@ def fly(world: str, radio: str, log: Path) -> tuple[dict | None, str]:
 def flights(tmp_path_factory):
     root = tmp_path_factory.mktemp("impaired")
     radios = {"lab": "lab", "harsh": "harsh", "loss30": str(radio_profile(root, "loss30", loss=0.30))}
-    cells = [(w, p) for w in LAB_MAZES for p in PROFILES]
+    cells = [(w, p) for w in (LAB_MAZES if shared_worlds_present() else []) for p in PROFILES]
     with ThreadPoolExecutor(CONCURRENT_FLIGHTS) as pool:
         futures = {c: pool.submit(fly, c[0], radios[c[1]], root / f"{c[0]}_{c[1]}") for c in cells}
         return {c: f.result() for c, f in futures.items()}

@@ -27,9 +27,9 @@ from model.vehicle import load_vehicle
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from flight_helpers import free_port, radio_profile  # noqa: E402
+from flight_helpers import radio_profile  # noqa: E402
+from testsupport import free_port, shared_world  # noqa: E402
 
-WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
 MIN_FRAMES = 10_000
 RATE_TOLERANCE = 0.02  # 2 percentage points
 
@@ -126,21 +126,19 @@ def test_timesync_and_frame_ages_equal_the_configured_latency(tmp_path):
 
 def _states_hash(tmp_path, seed: int, name: str, mode: str, *extra: str) -> str:
     log = tmp_path / name
-    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(WORLDS / "maze_2024_1.json"), "--mode",
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(shared_world("maze_2024_1")), "--mode",
                           mode, "--seed", str(seed), "--json", "--log", str(log), *extra],
                          capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
     assert json.loads(run.stdout)["result"] == "reached_goal", run.stderr
     return hashlib.sha256((log / "states.csv").read_bytes()).hexdigest()
 
 
-@pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
 def test_same_seed_gives_byte_identical_states_and_another_seed_differs(tmp_path):
     first = _states_hash(tmp_path, 11, "a", "attitude")
     assert _states_hash(tmp_path, 11, "b", "attitude") == first
     assert _states_hash(tmp_path, 12, "c", "attitude") != first
 
 
-@pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
 def test_pipelined_ticks_give_the_same_flight_as_strict_lockstep(tmp_path):
     """In moments mode at 500 Hz the emulator publishes a tick before the last one's ack arrives (the
     firmware-cycle lookahead covers a whole tick); with --no-lookahead it waits for every ack. The

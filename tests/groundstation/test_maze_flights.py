@@ -12,11 +12,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+from testsupport import SHARED_WORLDS, shared_world_params, shared_worlds_present
 
-WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
 COURSE_MAPS = ("test_maze", "test_over_under", "p13_test_window")
-LAB_MAZES = tuple(sorted(p.stem for p in WORLDS.glob("test_lab_*.json")) +
-                  sorted(p.stem for p in WORLDS.glob("maze_20*.json"))) if WORLDS.is_dir() else ()
+WORLD_CASES = shared_world_params(*(f"{name}.json" for name in COURSE_MAPS), "test_lab_*.json", "maze_20*.json")
 MODES = ("moments", "attitude")
 COURSE_CLEARANCE_M = 0.25
 LAB_CLEARANCE_M = 0.10
@@ -26,12 +25,9 @@ COURSE_ARGS = ("--planning", "planning_aggressive", "--controller", "full", "--m
 LAB_ARGS = ()  # the defaults: minimum snap at the report's 1 m/s, margin 0.2 m
 CONCURRENT_FLIGHTS = 3
 
-pytestmark = pytest.mark.skipif(not WORLDS.is_dir(), reason=f"shared world files not found at {WORLDS}")
-
-
 def fly(world: str, mode: str, log: Path) -> tuple[int, dict | None, str]:
     args = COURSE_ARGS if world in COURSE_MAPS else LAB_ARGS
-    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(WORLDS / f"{world}.json"), "--mode", mode,
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(SHARED_WORLDS / f"{world}.json"), "--mode", mode,
                           "--radio", "crazyradio", "--clock", "lockstep", "--seed", "7", "--json", "--log", str(log),
                           *args], capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
     summary = json.loads(run.stdout) if run.stdout.strip() else None
@@ -40,7 +36,7 @@ def fly(world: str, mode: str, log: Path) -> tuple[int, dict | None, str]:
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
-    cells = [(w, m) for w in COURSE_MAPS + LAB_MAZES for m in MODES]
+    cells = [(w, m) for w in (WORLD_CASES if shared_worlds_present() else []) for m in MODES]
     root = tmp_path_factory.mktemp("maze_flights")
     with ThreadPoolExecutor(CONCURRENT_FLIGHTS) as pool:
         futures = {cell: pool.submit(fly, cell[0], cell[1], root / f"{cell[0]}_{cell[1]}") for cell in cells}
@@ -48,7 +44,7 @@ def flights(tmp_path_factory):
 
 
 @pytest.mark.parametrize("mode", MODES)
-@pytest.mark.parametrize("world", COURSE_MAPS + LAB_MAZES)
+@pytest.mark.parametrize("world", WORLD_CASES)
 def test_maze_flight_reaches_goal_with_clearance(flights, world, mode):
     code, summary, stderr = flights[(world, mode)]
     assert summary is not None, stderr

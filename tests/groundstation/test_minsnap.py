@@ -27,10 +27,9 @@ from model.errors import UserError
 from model.vehicle import GRAVITY_MPS2, load_vehicle
 from model.world import load_world
 
-WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from testsupport import shared_world  # noqa: E402
 from trajectory_checks import assert_samples_are_fresh_arrays  # noqa: E402
 
 WAYPOINTS = np.array(
@@ -207,10 +206,7 @@ def test_coincident_waypoints_are_a_user_error():
 
 @pytest.mark.parametrize("name", ["test_lab_1.json", "maze_2024_3.json", "maze_2026_2.json"])
 def test_lab_maze_trajectory_clears_the_margin_after_repair(name):
-    path = WORLDS / name
-    if not path.is_file():
-        pytest.skip(f"course world {path} not found (../shared is absent)")
-    world = load_world(path)
+    world = load_world(shared_world(name.removesuffix(".json")))
     margin = 0.25
     result = plan_path(world, 0.05, margin)
     s = settings()

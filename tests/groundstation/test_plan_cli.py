@@ -6,21 +6,16 @@ import json
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from testsupport import shared_world
 
 from cfstack.cli import main
 
-WORLDS = Path(__file__).resolve().parents[2].parent / "shared" / "worlds"
-
 
 def course(name: str) -> str:
-    path = WORLDS / name
-    if not path.is_file():
-        pytest.skip(f"course world {path} not found (../shared is absent)")
-    return str(path)
+    return str(shared_world(name.removesuffix(".json")))
 
 
 def run_json(capsys, *argv) -> tuple[int, dict]:

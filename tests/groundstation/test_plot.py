@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from testsupport import shared_world
 
 from cfstack.cli import main as cfstack_main
 from groundstation import plot
@@ -239,9 +240,7 @@ def test_box_faces_are_the_six_sides_of_the_box():
 
 
 def test_course_world_renders(tmp_path):
-    shared = Path(__file__).resolve().parents[3] / "shared" / "worlds" / "custom_pillars.json"
-    if not shared.is_file():
-        pytest.skip(f"course worlds not found at {shared.parent} (../shared absent)")
+    shared = shared_world("custom_pillars")
     log = read_log(write_log(tmp_path / "log", n=60, plan_world=shared))
     figure = plot.plot_trajectory_3d(log, plot.load_world(log.plan.world_path))
     out = tmp_path / "trajectory_3d.png"

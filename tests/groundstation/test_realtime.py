@@ -17,7 +17,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from flight_helpers import free_port, radio_profile  # noqa: E402
+from flight_helpers import radio_profile  # noqa: E402
+from testsupport import free_port  # noqa: E402
 
 pytestmark = pytest.mark.realtime
 

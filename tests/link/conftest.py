@@ -10,6 +10,7 @@ Gives out (fixtures): `free_tcp_port` / `free_udp_port` (a function returning a 
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import select
 import socket
@@ -22,21 +23,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
+from testsupport import free_port
 
 from link.transports.base import Transport
-
-
-def _free_tcp_port() -> int:
-    """A loopback TCP port nobody listens on right now (bind to port 0, read it back, release it)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @contextlib.contextmanager
@@ -160,13 +149,13 @@ class RouterProcess:
 @pytest.fixture(scope="session")
 def free_tcp_port():
     """A function returning a free loopback TCP port."""
-    return _free_tcp_port
+    return free_port
 
 
 @pytest.fixture(scope="session")
 def free_udp_port():
     """A function returning a free loopback UDP port."""
-    return _free_udp_port
+    return functools.partial(free_port, socket.SOCK_DGRAM)
 
 
 @pytest.fixture
@@ -188,6 +177,6 @@ def transfer():
 
 @pytest.fixture
 def zenoh_router() -> Iterator[RouterProcess]:
-    port = _free_tcp_port()
+    port = free_port()
     with _run_router(port) as process:
         yield RouterProcess(f"tcp/127.0.0.1:{port}", process)
