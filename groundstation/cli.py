@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.child_process import die_with_parent
 from groundstation.planned import plan_track
 from groundstation.session import SessionOptions, dump_json, human_summary, run_session
 from groundstation.step_analysis import analyze_step, plot_step
@@ -141,17 +142,6 @@ class FlightFailed(UserError):
     exit_code = 1
 
 
-def _die_with_parent() -> None:
-    """In the child: ask Linux to SIGTERM it when the ground station dies, however it dies."""
-    try:
-        import ctypes
-        import signal as _signal
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, _signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
-    except (OSError, AttributeError):  # not Linux: the child is stopped by stop() as usual
-        pass
-
-
 class EmulatorChild:
     """`cfstack emulator` as a child process on a private loopback zenoh endpoint."""
 
@@ -170,7 +160,7 @@ class EmulatorChild:
         self.stderr = tempfile.TemporaryFile(mode="w+")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                      stderr=self.stderr, text=True, env=os.environ.copy(),
-                                     preexec_fn=_die_with_parent)
+                                     preexec_fn=die_with_parent)
 
     def _stderr_lines(self) -> list[str]:
         self.stderr.seek(0)

@@ -1,14 +1,17 @@
-"""Reading versioned TOML parameter files with one-line errors naming the file and the field.
+"""Reading (and writing) versioned TOML parameter files, with one-line errors naming the file and the field.
 
 Takes in: a TOML file path, or a built-in name looked up in a package's params folder.
 Gives out: a `Params` view whose accessors check type, range and presence, raising ConfigError
-("FILE: field: problem").
+("FILE: field: problem"); `dump_toml`, the one TOML writer (tomllib only reads), for generated files
+such as the radio profiles of a sweep.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 
@@ -135,3 +138,36 @@ class Params:
             raise self.error(key, f"expected {rows} rows of {cols} numbers")
         return [Params({"row": row}, self.source, f"{self.prefix}{key}[{i}].").vector("row", cols)
                 for i, row in enumerate(value)]
+
+
+def _toml_value(value, where: str) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: cannot write {value!r}")
+        return repr(value)  # shortest round-trip form, valid TOML ("1e-05", "0.02")
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)  # JSON string escapes are valid TOML basic strings
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v, where) for v in value) + "]"
+    raise ConfigError(f"{where}: cannot write a {type(value).__name__} value to TOML")
+
+
+def dump_toml(data: Mapping, header: str = "") -> str:
+    """TOML text of nested tables of scalars and lists (what radio profiles hold)."""
+    lines = [f"# {line}" for line in header.splitlines()]
+
+    def emit(table: Mapping, prefix: str) -> None:
+        for key, value in table.items():
+            if not isinstance(value, Mapping):
+                lines.append(f"{key} = {_toml_value(value, prefix + key)}")
+        for key, value in table.items():
+            if isinstance(value, Mapping):
+                lines.extend(["", f"[{prefix}{key}]"])
+                emit(value, f"{prefix}{key}.")
+
+    emit(data, "")
+    return "\n".join(lines) + "\n"

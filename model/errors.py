@@ -2,8 +2,11 @@
 
 Takes in: a one-line message naming the file or field.
 Gives out: an exception the `cfstack` dispatcher prints as one line with a non-zero exit code,
-never a traceback.
+never a traceback; OneLineParser, the argparse every subcommand uses, which reports a bad option that way
+(not as a usage block and SystemExit).
 """
+
+import argparse
 
 
 class UserError(Exception):
@@ -18,3 +21,11 @@ class ConfigError(UserError):
 
 class WorldError(UserError):
     """A world (JSON) file is malformed or describes an impossible world."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse whose bad option is a one-line UserError (exit code 2), naming the option and pointing
+    at --help, instead of a usage block and SystemExit."""
+
+    def error(self, message: str):
+        raise UserError(f"{message} (see '{self.prog} --help')")

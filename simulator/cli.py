@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 from link.keys import DEFAULT_PREFIX
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
-from model.errors import UserError
+from model.errors import OneLineParser, UserError
 
 if TYPE_CHECKING:
     from simulator.emulator import EmulatorConfig
@@ -29,13 +29,6 @@ if TYPE_CHECKING:
 # numpy, scipy and the emulator load only after the options are parsed: a mistyped option fails at once.
 
 log = logging.getLogger("cfstack.emulator")
-
-
-class _OneLineParser(argparse.ArgumentParser):
-    """argparse that reports a bad option as a UserError (one line, exit code 2), not usage + error."""
-
-    def error(self, message: str):
-        raise UserError(f"{message} (see 'cfstack emulator --help')")
 
 
 def _positive_float(text: str) -> float:
@@ -92,7 +85,7 @@ def _outage(text: str) -> tuple[float, float | None]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _OneLineParser(prog="cfstack emulator", description=__doc__.splitlines()[0])
+    p = OneLineParser(prog="cfstack emulator", description=__doc__.splitlines()[0])
     p.add_argument("--world", help="world JSON file (default: an empty room)")
     p.add_argument("--vehicles", type=_vehicle_count, default=1, help="number of vehicles (ids 1..N)")
     p.add_argument("--vehicle-model", default="crazyflie", help="vehicle name (crazyflie, cf2x) or TOML file")

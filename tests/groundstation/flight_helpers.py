@@ -7,7 +7,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from groundstation.sweep import dump_toml
+from model.config import dump_toml
 
 RADIO_DIR = Path(__file__).resolve().parents[2] / "model" / "params" / "radio"
 
