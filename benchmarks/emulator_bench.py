@@ -89,7 +89,7 @@ def fly_inprocess(radio: str, vehicles: int, seconds: float, seed: int, profile:
                 node.push_uplink([frame], t)
         emulator.step_all()
         for node in emulator.nodes:
-            published += len(node.take_due(emulator.steps))
+            published += len(node.outbox.take_due(emulator.steps))
     wall = clock() - start - script_s  # the scripted ground station's encoding is not the emulator's
     cpu = time.process_time() - cpu0 - script_s
     heights = [node.sim.truth.position_enu_m[2] for node in emulator.nodes]
@@ -145,13 +145,13 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
             raise RuntimeError(f"the responder did not start: {ready!r}")
         cpu0, main0 = cpu_s(), time.thread_time()
         emulator.run()  # returns at the duration
-        wall = time.monotonic() - emulator.first_tick_wall
+        wall = time.monotonic() - emulator.lockstep.first_tick_wall
         cpu, main_cpu = cpu_s() - cpu0, time.thread_time() - main0
         out, _ = child.communicate(timeout=120)
     responder = json.loads(out.strip().splitlines()[-1])
     ticks = emulator.tick + 1
     return {"rtf": emulator.tick_time_s / wall, "wall_s": wall, "ticks": ticks, "us_per_tick": wall / ticks * 1e6,
-            "lookahead_steps": emulator.lookahead_steps, "timing": emulator.timing_report(),
+            "lookahead_steps": emulator.lockstep.lookahead_steps, "timing": emulator.timing_report(),
             "responder": responder, "cpu_us_per_tick": cpu / ticks * 1e6,
             "main_cpu_us_per_tick": main_cpu / ticks * 1e6}
 

@@ -24,7 +24,7 @@ from link.transports.zenoh_session import add_zenoh_arguments, zenoh_options_fro
 from model.errors import OneLineParser, UserError
 
 if TYPE_CHECKING:
-    from simulator.emulator import EmulatorConfig
+    from simulator.emulator_config import EmulatorConfig
 
 # numpy, scipy and the emulator load only after the options are parsed: a mistyped option fails at once.
 
@@ -123,7 +123,8 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
     from model.radio import load_radio_profile
     from model.vehicle import load_mocap_room, load_vehicle
     from model.world import load_world
-    from simulator.emulator import EmulatorConfig, Outage
+    from simulator.emulator_config import EmulatorConfig
+    from simulator.faults import Outage
 
     if args.radio_ledger is not None and not Path(args.radio_ledger).resolve().parent.is_dir():
         raise UserError(f"--radio-ledger {args.radio_ledger}: no such directory to write it in")
@@ -166,7 +167,7 @@ def emulator_command(argv: list[str]) -> int:
     with emulator:
         log.info("emulator up: %d vehicle(s), %s clock, radio %s, seed %d, keys %s/vehicle/1..%d/..., "
                  "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, config.seed,
-                 config.prefix, config.vehicles, emulator.lookahead_horizon_s() * 1e3)
+                 config.prefix, config.vehicles, emulator.lockstep.lookahead_horizon_s() * 1e3)
         emulator.run()
     if args.radio_ledger:
         emulator.write_radio_report(args.radio_ledger)

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import heapq
 import math
-import time
 from collections import deque
 from pathlib import Path
 from typing import NamedTuple
@@ -41,6 +40,7 @@ from model.vehicle import MocapRoom, Vehicle
 from model.world import World
 from simulator.dynamics import Crash, QuadrotorDynamics
 from simulator.firmware import Firmware, FirmwareParams, load_firmware_params
+from simulator.profiling import time_parts
 from simulator.sensors import ImuModel, MocapModel
 
 _EPS_S = 1e-9  # schedule comparisons tolerate float rounding of k / rate (well under a nanosecond tick)
@@ -110,8 +110,11 @@ class SimVehicle:
         # the first cycle at or after its delivery (first_effect_s, the emulator's lockstep lookahead).
         steps_per_cycle = physics_rate_hz / params.commander_rate_hz
         self._fw_on_steps = abs(steps_per_cycle - round(steps_per_cycle)) < 1e-9 and round(steps_per_cycle) >= 1
-        self.profile = profile
-        self.timing_s = {"uplink": 0.0, "firmware": 0.0, "sensors": 0.0, "physics": 0.0}
+        self.timing_s: dict[str, float] = {}
+        if profile:  # benchmarks: the same step, its parts timed (simulator.profiling)
+            time_parts(self, {"_deliver_due": "uplink", "_tick_firmware": "firmware", "_sample_due": "sensors"},
+                       self.timing_s)
+            time_parts(self.dynamics, {"step": "physics"}, self.timing_s)
         if airborne:
             hover = vehicle.hover_rotor_speed_radps
             if not self.dynamics.on_ground:
@@ -153,9 +156,6 @@ class SimVehicle:
 
     def step(self) -> None:
         """One physics step (see the module docstring for what happens inside)."""
-        if self.profile:
-            self._step_profiled()
-            return
         d = self.dynamics
         t = d.t_s
         if t + _EPS_S >= self._due_s:  # most steps at 1 kHz have nothing due but the physics
@@ -250,29 +250,6 @@ class SimVehicle:
     def _emit_truth(self, t: float) -> None:
         self._truth.advance(t)
         self._out.append(Output(t, "truth", self.dynamics.truth()))
-
-    def _step_profiled(self) -> None:
-        """step() with time.perf_counter accounting per part (for benchmarks; a few us slower)."""
-        clock = time.perf_counter
-        timing = self.timing_s
-        t = self.dynamics.t_s
-        t0 = t1 = t2 = t3 = clock()
-        if t + _EPS_S >= self._due_s:
-            firmware_due = t + _EPS_S >= self._fw.next_s
-            if firmware_due and self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
-                self._deliver_due(t)
-            t1 = clock()
-            if firmware_due:
-                self._tick_firmware(t)
-            t2 = clock()
-            self._sample_due(t)
-            t3 = clock()
-        self.dynamics.step()
-        t4 = clock()
-        timing["uplink"] += t1 - t0
-        timing["firmware"] += t2 - t1
-        timing["sensors"] += t3 - t2
-        timing["physics"] += t4 - t3
 
 
 def _release_time(output: Output) -> float:

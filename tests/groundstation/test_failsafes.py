@@ -42,8 +42,8 @@ from link.transports import open_transport
 from model.radio import load_radio_profile
 from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.cli import build_parser as build_emulator_parser
-from simulator.emulator import GroundFrameGate
 from simulator.firmware import load_firmware_params
+from simulator.fleet import GroundFrameGate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

@@ -152,7 +152,7 @@ def test_an_impossible_config_is_a_user_error(changes):
 
 def test_lockstep_without_a_ground_station_waits_and_says_so(caplog):
     emulator = Emulator(config(connection="mem:emulator-wait-1"))
-    emulator.wait_log_period_s = 0.05
+    emulator.lockstep.wait_log_period_s = 0.05
     with caplog.at_level(logging.INFO, logger="cfstack.emulator"), emulator:
         thread = run_in_thread(emulator)
         time.sleep(0.4)
@@ -170,7 +170,7 @@ def test_a_silent_ground_station_holds_the_clock_at_its_tick_within_the_lookahea
     publishes nothing beyond tick 0 until the ack comes."""
     bus = "mem:emulator-wait-2"
     emulator = Emulator(config(connection=bus))
-    emulator.wait_log_period_s = 0.05
+    emulator.lockstep.wait_log_period_s = 0.05
     keys = VehicleKeys("cfstack", 1)
     with caplog.at_level(logging.INFO, logger="cfstack.emulator"), emulator, \
             open_transport(bus, tx=keys.clock_ack, rx=keys.clock) as clock, \
@@ -201,17 +201,17 @@ def test_the_lookahead_horizon_is_the_first_firmware_cycle_after_the_minimum_lat
     cycle_s = 1.0 / load_firmware_params().commander_rate_hz
     expected = math.ceil(latency_s / cycle_s) * cycle_s if rate_hz == 1000.0 else latency_s
     assert latency_s < expected or rate_hz == 300.0
-    assert emulator.lookahead_horizon_s() == pytest.approx(expected)
-    assert Emulator(config(physics_rate_hz=rate_hz, lookahead=False)).lookahead_horizon_s() == 0.0
+    assert emulator.lockstep.lookahead_horizon_s() == pytest.approx(expected)
+    assert Emulator(config(physics_rate_hz=rate_hz, lookahead=False)).lockstep.lookahead_horizon_s() == 0.0
 
 
 def test_no_lookahead_when_disabled_or_when_the_radio_has_no_latency():
-    assert Emulator(config(lookahead=False)).lookahead_horizon_s() == 0.0
-    assert Emulator(config(radio=load_radio_profile("ideal"))).lookahead_horizon_s() == 0.0
+    assert Emulator(config(lookahead=False)).lockstep.lookahead_horizon_s() == 0.0
+    assert Emulator(config(radio=load_radio_profile("ideal"))).lockstep.lookahead_horizon_s() == 0.0
     lab = load_radio_profile("lab")
     cycle_s = 1.0 / load_firmware_params().commander_rate_hz
     expected = math.ceil(lab.min_latency_s / cycle_s) * cycle_s  # the first firmware cycle at or after L
-    assert lab.min_latency_s <= Emulator(config(radio=lab)).lookahead_horizon_s() == pytest.approx(expected)
+    assert lab.min_latency_s <= Emulator(config(radio=lab)).lockstep.lookahead_horizon_s() == pytest.approx(expected)
 
 
 @pytest.mark.parametrize("rate_hz", [1000.0, 300.0])
@@ -219,17 +219,17 @@ def test_the_next_tick_is_the_first_step_boundary_at_or_after_the_wakeup(rate_hz
     emulator = Emulator(config(physics_rate_hz=rate_hz))
     step_ns = NS_PER_S / rate_hz
     for target_ns in (1, 2_000_000, 2_000_001, 10_000_000, 123_456_789, 3 * NS_PER_S):
-        n = emulator.next_tick_steps(target_ns)
+        n = emulator.lockstep.next_tick_steps(target_ns)
         assert round(n * emulator.dt_s * NS_PER_S) >= target_ns
         assert round((n - 1) * emulator.dt_s * NS_PER_S) < target_ns
         assert abs(n - math.ceil(target_ns / step_ns)) <= 1
-    emulator.tick_steps = 50
-    assert emulator.next_tick_steps(0) == 50  # never back in time
+    emulator.lockstep.tick_steps = 50
+    assert emulator.lockstep.next_tick_steps(0) == 50  # never back in time
 
 
 def test_the_duration_caps_the_last_tick():
     emulator = Emulator(config(duration_s=0.25))
-    assert emulator.next_tick_steps(10 * NS_PER_S) == 250
+    assert emulator.lockstep.next_tick_steps(10 * NS_PER_S) == 250
 
 
 # --- vehicles, radios, parsing --------------------------------------------------------------------
@@ -241,7 +241,7 @@ def step_with_traffic(emulator: Emulator, steps: int) -> None:
         if emulator.steps % 2 == 0:
             node.push_uplink([GROUND.encode(ThrustMoment(emulator.t_s, 0.0, (0.0, 0.0, 0.0)), 1)], emulator.t_s)
         emulator.step_all()
-        node.take_due(emulator.steps)
+        node.outbox.take_due(emulator.steps)
 
 
 @pytest.mark.parametrize("keep", [False, True])
@@ -310,12 +310,12 @@ def test_realtime_runs_at_the_wall_clocks_pace_and_publishes_as_it_goes():
 def test_a_batch_runs_exactly_the_steps_that_start_before_the_horizon_and_the_bounds(rate_hz, monkeypatch):
     """steps_allowed (one batch, no polls between its steps) against the one-step rule it replaces: the
     next step may run while it starts before horizon - margin, the next tick and the duration."""
-    from simulator.emulator import LOOKAHEAD_MARGIN_S, _Lockstep, _Participant
+    from simulator.lockstep import LOOKAHEAD_MARGIN_S, Lockstep, Participant
 
     emulator = Emulator(config(physics_rate_hz=rate_hz, duration_s=1.0))
-    lock = _Lockstep()
-    lock.participants[1] = _Participant(acked=0, wake_ns=0, period_ns=0, complete=0)
-    emulator.tick = 0
+    clock = emulator.lockstep
+    clock.lock.participants[1] = Participant(acked=0, wake_ns=0, period_ns=0, complete=0)
+    clock.tick = 0
     dt = emulator.dt_s
 
     def one_by_one(start: int, horizon_s: float, next_tick: int | None) -> int:
@@ -331,9 +331,10 @@ def test_a_batch_runs_exactly_the_steps_that_start_before_the_horizon_and_the_bo
                           (start + 2) * dt + LOOKAHEAD_MARGIN_S, (start + 3) * dt + LOOKAHEAD_MARGIN_S):
             for next_tick in (None, start, start + 1, start + 4, 2000):
                 emulator.steps = start
-                monkeypatch.setattr(emulator, "horizon_s", lambda lock, n, h=horizon_s: h)
+                monkeypatch.setattr(clock, "horizon_s", lambda n, h=horizon_s: h)
                 expected = one_by_one(start, horizon_s, next_tick)
-                assert emulator.steps_allowed(lock, next_tick) == expected, (start, horizon_s, next_tick)
+                assert clock.steps_allowed(next_tick) == expected, (start, horizon_s, next_tick)
                 sizes.add(expected)
     assert 0 in sizes and len(sizes) >= 4  # the grid reaches empty, one-step and longer batches
-    assert emulator.steps_allowed(_Lockstep(), None) == 0  # nobody taking part
+    clock.lock = Lockstep()
+    assert clock.steps_allowed(None) == 0  # nobody taking part

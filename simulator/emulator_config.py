@@ -1,0 +1,69 @@
+"""What an emulator runs with: the EmulatorConfig and its checks.
+
+Takes in: the vehicle, mocap room and radio descriptions (model/), a world, and the run's settings (fleet
+size, seed, clock, physics rate, connection, start, fault windows, signing).
+Gives out: a checked EmulatorConfig (a one-line UserError for settings no emulator can run with).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from model.errors import UserError
+from model.radio import RadioProfile
+from model.vehicle import MocapRoom, Vehicle
+from model.world import World
+from simulator.faults import Outage
+
+MAX_VEHICLES = 250  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
+
+
+@dataclass
+class EmulatorConfig:
+    vehicle: Vehicle
+    mocap_room: MocapRoom
+    radio: RadioProfile
+    world: World | None
+    vehicles: int = 1
+    seed: int = 0
+    clock: str = "lockstep"  # or "realtime"
+    physics_rate_hz: float = 1000.0
+    prefix: str = "cfstack"
+    connection: str = "zenoh"
+    zenoh_options: dict = field(default_factory=dict)
+    start_positions_enu_m: list[tuple[float, float, float]] | None = None
+    airborne: bool = False
+    signing: object | None = None
+    duration_s: float | None = None  # stop after this much simulation time (None: until stopped)
+    lookahead: bool = True  # lockstep: run physics ahead by the uplink's minimum latency (see above)
+    keep_ledger: bool = False  # radios keep every frame's fate (memory grows with the run: tests only)
+    profile: bool = False  # accumulate per-part wall time in Emulator.timing_s (benchmarks)
+    radio_cuts: tuple[Outage, ...] = ()  # every radio frame offered inside these windows is dropped
+    mocap_cuts: tuple[Outage, ...] = ()  # no mocap frame is published inside these windows
+    # A fresh Signing with the key of `signing` (one per vehicle, for GroundFrameGate's own replay state).
+    # None with signing on: the gate can only require signed frames from the ground station's system id.
+    signing_factory: Callable[[], object | None] | None = None
+
+    def check(self) -> None:
+        """One-line UserError for settings no emulator can run with."""
+        if isinstance(self.vehicles, bool) or not isinstance(self.vehicles, int) \
+                or not 1 <= self.vehicles <= MAX_VEHICLES:
+            raise UserError(f"vehicles: {self.vehicles!r} is not a vehicle count 1..{MAX_VEHICLES}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise UserError(f"seed: {self.seed!r} is not a non-negative integer")
+        if self.clock not in ("lockstep", "realtime"):
+            raise UserError(f"clock: '{self.clock}' is not one of lockstep, realtime")
+        rate = self.physics_rate_hz
+        if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0.0:
+            raise UserError(f"physics rate: {rate!r} is not a positive number of Hz")
+        if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
+            raise UserError(f"duration: {self.duration_s!r} is not a positive number of seconds")
+        starts = self.start_positions_enu_m
+        if starts is not None and len(starts) != self.vehicles:
+            raise UserError(f"{len(starts)} start positions given for {self.vehicles} vehicle(s)")
+        for outage in self.radio_cuts:
+            outage.check("radio cut")
+        for outage in self.mocap_cuts:
+            outage.check("mocap cut")

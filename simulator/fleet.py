@@ -1,0 +1,276 @@
+"""The fleet: each emulated vehicle with its radios, codecs, uplink gate and zenoh keys.
+
+Takes in: the EmulatorConfig, a vehicle id and its seed; uplink samples from the transport (or pushed
+in-process); the step count of each physics step.
+Gives out: per step, the vehicle's frames in its Outbox (downlink through the downlink radio, mocap and
+truth on the ground network), RADIO_STATUS once a second, a crash reported once; per-part timing when
+profiled. `default_starts` places a fleet: vehicle 1 at the world's start, the others 0.5 m apart.
+
+Foreign uplink frames. Anyone may publish on a vehicle's uplink key. Every sample is offered to the
+uplink radio (so the vehicle's parser rejects what is unsigned, forged or replayed, and counts it), but
+only the ground station's own frames count towards the `uplink_sent` its lockstep acks announce
+(GroundFrameGate: source system id GROUND_STATION_SYSTEM_ID and, with signing on, a valid signature
+newer than the last one, checked by a signing state of the gate's own). Foreign samples are counted
+apart (`uplink_foreign`), so they neither release a tick early nor stall one. Without signing, a frame
+that claims the ground station's system id cannot be told from its own.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict, deque
+
+import numpy as np
+
+from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
+from link.mavlink.codec import IFLAG_SIGNED, MAGIC_V2, MIN_FRAME_LEN, ActuatorLimits, Codec, FrameParser
+from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
+from link.messages import RadioStatus
+from link.transports import Transport, open_transport
+from model.world import World
+from simulator.emulator_config import EmulatorConfig
+from simulator.faults import covered
+from simulator.profiling import time_parts
+from simulator.publishing import DOWNLINK, MOCAP, TRUTH, Outbox
+from simulator.radio import RadioChannel
+from simulator.vehicle_sim import SimVehicle
+
+log = logging.getLogger("cfstack.emulator")
+
+RADIO_STATUS_PERIOD_S = 1.0  # RADIO_STATUS once a second, as SiK radios report it
+STEP_TOTAL = "step"  # profiled: a whole VehicleNode.step, the parts included
+
+
+class GroundFrameGate:
+    """Counts the ground station's own frames in an uplink sample, as they arrive (before the radio).
+
+    A frame is the ground station's if it is a whole MAVLink 2 frame from GROUND_STATION_SYSTEM_ID and,
+    when signing is on, signed; with a Signing of its own (same key) the gate also checks the signature
+    and that its timestamp is newer than the last one accepted (so a replay is not counted). The
+    vehicle's parser decides independently, later, on what the radio delivers."""
+
+    def __init__(self, require_signed: bool, signing=None):
+        self.require_signed = require_signed
+        self.signing = signing
+
+    def count(self, sample: bytes) -> int:
+        """The ground station's frames in one sample (normally the sample is one frame: 0 or 1)."""
+        ours = 0
+        pos = 0
+        size = len(sample)
+        while pos + MIN_FRAME_LEN <= size and sample[pos] == MAGIC_V2:
+            signed = sample[pos + 2] & IFLAG_SIGNED
+            end = pos + MIN_FRAME_LEN + sample[pos + 1] + (SIGNATURE_BLOCK_LEN if signed else 0)
+            if end > size:
+                break
+            if self._ours(sample[pos:end], signed):
+                ours += 1
+            pos = end
+        return ours
+
+    def _ours(self, frame: bytes, signed: int) -> bool:
+        if frame[5] != GROUND_STATION_SYSTEM_ID:
+            return False
+        if not self.require_signed:
+            return True
+        if not signed:
+            return False
+        return self.signing is None or self.signing.check(frame, frame[5], frame[6]) is SignatureCheck.OK
+
+
+class VehicleNode:
+    """One emulated vehicle, its two radio channels, its codecs and (once opened) its zenoh keys.
+
+    `step(step_no)` advances it one physics step and queues what it publishes in its Outbox
+    (simulator.publishing) as (step_no, channel, frame). Without transports (never opened) it runs
+    in-process, e.g. in benchmarks."""
+
+    def __init__(self, config: EmulatorConfig, vehicle_id: int, rng_seed: np.random.SeedSequence,
+                 start: tuple[float, float, float]):
+        sim_seed, up_seed, down_seed = rng_seed.spawn(3)
+        self.vehicle_id = vehicle_id
+        self.keys = VehicleKeys(config.prefix, vehicle_id)
+        self.sim = SimVehicle(config.vehicle, np.random.default_rng(sim_seed), world=config.world,
+                              mocap_room=config.mocap_room, vehicle_id=vehicle_id,
+                              physics_rate_hz=config.physics_rate_hz, initial_position_enu_m=start,
+                              airborne=config.airborne, profile=config.profile)
+        self.uplink_radio = RadioChannel(config.radio, np.random.default_rng(up_seed), name=f"uplink {vehicle_id}",
+                                         keep_ledger=config.keep_ledger)
+        self.downlink_radio = RadioChannel(config.radio, np.random.default_rng(down_seed),
+                                           name=f"downlink {vehicle_id}", keep_ledger=config.keep_ledger)
+        limits = ActuatorLimits.from_vehicle(config.vehicle)
+        self.codec = Codec(system_id=vehicle_id, limits=limits, signing=config.signing)
+        self.ground_codec = Codec(system_id=vehicle_id, limits=limits)  # mocap and truth: never signed
+        self.parser = FrameParser(self.codec, signing=config.signing)
+        gate_signing = config.signing_factory() if config.signing is not None and config.signing_factory else None
+        self.gate = GroundFrameGate(require_signed=config.signing is not None, signing=gate_signing)
+        self.outbox = Outbox()
+        self.uplink_in = 0  # the ground station's uplink frames taken from the transport (GroundFrameGate)
+        self.held_uplink: deque[tuple[bytes, int]] = deque()  # lockstep: (sample, its frames of ours), not yet offered
+        self.uplink_released = 0  # the ground station's frames offered to the radio from held_uplink
+        self.uplink_foreign = 0  # uplink samples with none of its frames (another publisher on the key)
+        self.radio_cuts = config.radio_cuts
+        self.mocap_cuts = config.mocap_cuts
+        self.cut = {"uplink": 0, "downlink": 0}  # radio frames dropped by a radio cut
+        self.mocap_cut = 0  # mocap frames not published during a mocap cut
+        self.next_radio_status_s = RADIO_STATUS_PERIOD_S
+        self.crash_reported = False
+        self.timing_s: dict[str, float] = defaultdict(float)
+        self.link: Transport | None = None  # tx downlink, rx uplink
+        self.clock: Transport | None = None  # tx clock, rx clock_ack
+        if config.profile:
+            self._profile()
+
+    # --- transports -----------------------------------------------------------------------------
+    def open(self, config: EmulatorConfig) -> None:
+        opts = config.zenoh_options if config.connection.startswith("zenoh") else {}
+        try:
+            self.link = open_transport(config.connection, tx=self.keys.downlink, rx=self.keys.uplink, **opts)
+            mocap = open_transport(config.connection, tx=self.keys.mocap, **opts)
+            truth = open_transport(config.connection, tx=self.keys.truth, **opts)
+            self.outbox.senders = [self.link, mocap, truth]
+            self.clock = open_transport(config.connection, tx=self.keys.clock, rx=self.keys.clock_ack, **opts)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        for transport in (*self.outbox.senders, self.link, self.clock):
+            if transport is not None:
+                transport.close()
+
+    def receive_uplink(self, push_time_s: float, timeout_s: float = 0.0) -> int:
+        """Offer every uplink frame that has arrived on the transport to the uplink radio at push_time_s."""
+        frames = self.link.receive(timeout_s)
+        if frames:
+            self.push_uplink(frames, push_time_s)
+        return len(frames)
+
+    def push_uplink(self, frames: list[bytes], push_time_s: float) -> None:
+        """Offer uplink samples to the radio at push_time_s now (realtime, in-process), counting the
+        ground station's frames among them."""
+        for frame in frames:
+            self._count_arrival(frame)
+        self._offer_uplink(frames, push_time_s)
+
+    def take_uplink(self, timeout_s: float = 0.0) -> int:
+        """Lockstep: take the uplink samples that have arrived, count the ground station's frames among
+        them, and hold them until its acks account for them (release_uplink)."""
+        samples = self.link.receive(timeout_s)
+        for sample in samples:
+            self.held_uplink.append((sample, self._count_arrival(sample)))
+        return len(samples)
+
+    def _count_arrival(self, sample: bytes) -> int:
+        """The ground station's frames in an arriving uplink sample (GroundFrameGate), counted."""
+        ours = self.gate.count(sample)
+        self.uplink_in += ours
+        if not ours:
+            self.uplink_foreign += 1
+        return ours
+
+    def release_uplink(self, sent: float, push_time_s: float) -> None:
+        """Offer held samples, in arrival order, to the radio at push_time_s while the ground station's
+        frames among them stay within `sent` (its ack's count); a foreign sample goes with them.
+        sent = uplink_released: only the foreign samples at the head; math.inf: every held sample."""
+        held = self.held_uplink
+        while held and self.uplink_released + held[0][1] <= sent:
+            sample, ours = held.popleft()
+            self.uplink_released += ours
+            self._offer_uplink((sample,), push_time_s)
+
+    def _offer_uplink(self, frames, push_time_s: float) -> None:
+        """Into the uplink radio at push_time_s, unless a radio cut covers that time."""
+        if self.radio_cuts and covered(self.radio_cuts, push_time_s):
+            self.cut["uplink"] += len(frames)
+            return
+        push = self.uplink_radio.push
+        for frame in frames:
+            push(frame, push_time_s)
+
+    def _offer_downlink(self, frame: bytes, t_s: float) -> None:
+        if self.radio_cuts and covered(self.radio_cuts, t_s):
+            self.cut["downlink"] += 1
+            return
+        self.downlink_radio.push(frame, t_s)
+
+    def _mocap_cut(self, release_s: float) -> bool:
+        if self.mocap_cuts and covered(self.mocap_cuts, release_s):
+            self.mocap_cut += 1
+            return True
+        return False
+
+    # --- one physics step -----------------------------------------------------------------------
+    def step(self, step_no: int) -> None:
+        """Deliver the uplink frames due at the step's start, step the vehicle, route its outputs
+        (stamped step_no: the step count once this step is done)."""
+        sim = self.sim
+        t = sim.t_s
+        due = self.uplink_radio.pop_due(t)  # [] at once when nothing is due (the radio's own check)
+        if due:
+            self._deliver_uplink(due, t)
+        sim.step()
+        t = sim.t_s
+        outbox = self.outbox.queue
+        for release_s, channel, message in sim.pop_outputs():
+            if channel == "downlink":
+                self._offer_downlink(self.codec.encode(message), release_s)  # encoded: a cut frame uses its seq
+            elif channel == "mocap":
+                if not self._mocap_cut(release_s):
+                    outbox.append((step_no, MOCAP, self.ground_codec.encode(message)))
+            else:
+                outbox.append((step_no, TRUTH, self.ground_codec.encode(message)))
+        self._finish_step(t, step_no)
+
+    def _finish_step(self, t: float, step_no: int) -> None:
+        """The end of a step at time t: RADIO_STATUS when due, the downlink frames the radio delivers
+        by t into the outbox, a crash reported once."""
+        if t >= self.next_radio_status_s:
+            self._push_radio_status(t)
+        outbox = self.outbox.queue
+        for frame in self.downlink_radio.pop_due(t):
+            outbox.append((step_no, DOWNLINK, frame))
+        if self.sim.crash is not None and not self.crash_reported:
+            self._report_crash()
+
+    def _deliver_uplink(self, frames: list[bytes], t: float) -> None:
+        feed, handle = self.parser.feed, self.sim.handle_uplink
+        for frame in frames:
+            for decoded in feed(frame, True):  # each uplink sample is whole frames (a datagram)
+                handle(decoded.message, t)
+
+    def _push_radio_status(self, t: float) -> None:
+        self.next_radio_status_s += RADIO_STATUS_PERIOD_S
+        status = RadioStatus(**self.downlink_radio.radio_status(reverse=self.uplink_radio))
+        self._offer_downlink(self.codec.encode(status), t)
+
+    def _report_crash(self) -> None:
+        self.crash_reported = True
+        c = self.sim.crash
+        pos = ", ".join(f"{v:.3f}" for v in c.position_enu_m)
+        log.warning("vehicle %d crashed at t=%.3f s at (%s) m: %s", self.vehicle_id, c.time_s, pos, c.reason)
+
+
+    def _profile(self) -> None:
+        """Time the parts of every step (benchmarks): radio, decode, outputs, encode, and the whole step,
+        from which Emulator.timing_report derives the routing left over. The vehicle's own split
+        (uplink handling, firmware, sensors, physics) is in sim.timing_s."""
+        timing = self.timing_s
+        time_parts(self.uplink_radio, {"pop_due": "radio"}, timing)
+        time_parts(self.downlink_radio, {"push": "radio", "pop_due": "radio"}, timing)
+        time_parts(self.codec, {"encode": "encode"}, timing)
+        time_parts(self.ground_codec, {"encode": "encode"}, timing)
+        time_parts(self.sim, {"pop_outputs": "outputs"}, timing)
+        time_parts(self, {"_deliver_uplink": "decode", "step": STEP_TOTAL}, timing)
+
+
+def default_starts(world: World | None, count: int, airborne: bool) -> list[tuple[float, float, float]]:
+    """Vehicle 1 at the world's start (else the origin): in the air there, or on the floor below it;
+    further vehicles 0.5 m apart along +x."""
+    floor = 0.0 if world is None else float(world.bounds[4])
+    base = np.array([0.0, 0.0, floor])
+    if world is not None and world.start is not None:
+        base = np.array(world.start, float)
+    if not airborne:
+        base[2] = floor if world is None else world.support_height(base)
+    return [tuple((base + np.array([0.5 * i, 0.0, 0.0])).tolist()) for i in range(count)]
