@@ -28,7 +28,6 @@ import argparse
 import json
 import os
 import resource
-import socket
 import statistics
 import subprocess
 import sys
@@ -41,6 +40,7 @@ from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
 from link.mavlink.codec import ActuatorLimits, Codec
 from link.messages import CommandKind, ThrustMoment, VehicleCommand
 from link.transports import open_transport
+from link.transports.base import free_loopback_port
 from model.radio import load_radio_profile
 from model.vehicle import load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
@@ -119,12 +119,6 @@ def report_inprocess(title: str, timed: dict, profiled: dict) -> None:
 
 # --- 3: over zenoh ----------------------------------------------------------------------------------
 
-def free_endpoint() -> str:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
-
-
 def cpu_s() -> float:
     usage = resource.getrusage(resource.RUSAGE_SELF)
     return usage.ru_utime + usage.ru_stime
@@ -132,7 +126,7 @@ def cpu_s() -> float:
 
 def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed: int, profile: bool) -> dict:
     """The emulator here (listening), the responder as a child process; wall time from tick 0."""
-    endpoint = free_endpoint()
+    endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
     config = make_config(radio, 1, seed, lookahead=lookahead, profile=profile, duration_s=seconds,
                          zenoh_options={"listen": [endpoint]})
     emulator = Emulator(config)

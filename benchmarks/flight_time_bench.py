@@ -22,7 +22,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
-WORLDS = Path(__file__).resolve().parents[1].parent / "shared" / "worlds"
+from bench_paths import SHARED_WORLDS
+
 # Best published results for these maps in the course's own simulator (issue 5).
 COURSE_BEST_S = {"test_maze": 9.04, "test_over_under": 13.17, "p13_test_window": 9.79}
 COURSE_ARGS = ["--planning", "planning_aggressive", "--controller", "full", "--margin", "0.32"]
@@ -32,7 +33,7 @@ LAB_CONSTANT_ARGS = ["--trajectory", "constant-speed", "--speed", "1.0"]
 
 
 def fly(world: str, args: list[str], mode: str, log: Path) -> dict:
-    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(WORLDS / f"{world}.json"), "--mode", mode,
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(SHARED_WORLDS / f"{world}.json"), "--mode", mode,
                           "--radio", "crazyradio", "--json", "--log", str(log), *args],
                          capture_output=True, text=True, stdin=subprocess.DEVNULL)
     if not run.stdout.strip():
@@ -50,10 +51,11 @@ def main() -> int:
     p.add_argument("--mode", default="moments", choices=("moments", "attitude"))
     p.add_argument("--only", nargs="*", help="world names to run (default: all)")
     args = p.parse_args()
-    if not WORLDS.is_dir():
-        print(f"shared worlds not found at {WORLDS}: nothing to measure")
+    if not SHARED_WORLDS.is_dir():
+        print(f"shared worlds not found at {SHARED_WORLDS}: nothing to measure")
         return 0
-    labs = sorted(w.stem for w in WORLDS.glob("test_lab_*.json")) + sorted(w.stem for w in WORLDS.glob("maze_20*.json"))
+    labs = (sorted(w.stem for w in SHARED_WORLDS.glob("test_lab_*.json"))
+            + sorted(w.stem for w in SHARED_WORLDS.glob("maze_20*.json")))
     course = list(COURSE_BEST_S)
     if args.only:
         labs = [w for w in labs if w in args.only]

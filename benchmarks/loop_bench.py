@@ -37,15 +37,16 @@ from tempfile import TemporaryDirectory
 
 import emulator_bench  # this folder: the zero-work responder and fly_zenoh (python puts it on sys.path)
 import numpy as np
+from bench_paths import SHARED_WORLDS
 
 from groundstation.session import DEFAULT_RATE_HZ
 from link.keys import GROUND_STATION_SYSTEM_ID
 from link.mavlink.codec import ActuatorLimits, FrameParser
 from link.mavlink.tlog import read_tlog
 from link.messages import ThrustMoment
+from link.transports.base import free_loopback_port
 from model.vehicle import load_vehicle
 
-WORLDS = Path(__file__).resolve().parents[1].parent / "shared" / "worlds"
 MAZE = "test_lab_1"
 FLOOR_RUNS = 3
 FLOOR_SECONDS = 10.0  # simulated seconds per floor run
@@ -68,8 +69,8 @@ def lockstep_table(tmp: Path, quick: bool) -> None:
     print(f"{'flight':28} {'mode':9} {'sim (s)':>8} {'loop (s)':>8} {'RTF':>6} {'whole':>6} {'us/tick':>8} "
           f"{'target':>7} {'result':>13}")
     flights = [("20 s circle", ["fly", "--trajectory", "circle"])]
-    if WORLDS.is_dir() and not quick:
-        flights.append((f"maze {MAZE}", ["fly", str(WORLDS / f"{MAZE}.json")]))
+    if SHARED_WORLDS.is_dir() and not quick:
+        flights.append((f"maze {MAZE}", ["fly", str(SHARED_WORLDS / f"{MAZE}.json")]))
     for name, args in flights:
         for mode, target in TARGET_RTF.items():
             s = cfstack(*args, "--mode", mode, "--log", str(tmp / f"{name.replace(' ', '_')}_{mode}"))
@@ -101,7 +102,7 @@ def print_floor() -> None:
 
 
 def realtime_flight(tmp: Path) -> tuple[dict, Path, dict, str]:
-    port = _free_port()
+    port = free_loopback_port()
     endpoint, prefix = f"tcp/127.0.0.1:{port}", f"b{uuid.uuid4().hex[:8]}"
     ledger, log = tmp / "ledger.json", tmp / "realtime"
     emulator = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--id", prefix,
@@ -140,7 +141,7 @@ def end_to_end_ms(log: Path, ledger: dict) -> np.ndarray:
 
 def bare_udp_rtt_ms(size: int, count: int = 2000) -> np.ndarray:
     """Round trips of `size`-byte datagrams through an echo in another process (loopback)."""
-    port = _free_port(socket.SOCK_DGRAM)
+    port = free_loopback_port(socket.SOCK_DGRAM)
     echo = subprocess.Popen([sys.executable, "-c", (
         "import socket,sys\n"
         f"s=socket.socket(socket.AF_INET,socket.SOCK_DGRAM);s.bind(('127.0.0.1',{port}))\n"
@@ -158,12 +159,6 @@ def bare_udp_rtt_ms(size: int, count: int = 2000) -> np.ndarray:
     s.sendto(b"stop", ("127.0.0.1", port))
     echo.wait(timeout=10)
     return np.array(rtts)
-
-
-def _free_port(kind=socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def main() -> int:

@@ -35,9 +35,9 @@ from model.world import load_world
 # the library alternative (scipy Dijkstra) lives with the tests, which use it as the oracle
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "groundstation"))
 
+from bench_paths import SHARED_WORLDS  # noqa: E402
 from reference_paths import dijkstra_length  # noqa: E402
 
-WORLDS = Path(__file__).resolve().parents[1].parent / "shared" / "worlds"
 LAB_RESOLUTION_M, LAB_MARGIN_M = 0.05, 0.25
 
 
@@ -96,11 +96,11 @@ def baseline_astar(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray) -> 
 
 
 def cases() -> list[tuple[str, np.ndarray, float]]:
-    names = sorted(p.name for p in WORLDS.glob("test_lab_*.json")) + sorted(
-        p.name for p in WORLDS.glob("maze_20*.json")
+    names = sorted(p.name for p in SHARED_WORLDS.glob("test_lab_*.json")) + sorted(
+        p.name for p in SHARED_WORLDS.glob("maze_20*.json")
     )
     out = [(n, np.full(3, LAB_RESOLUTION_M), LAB_MARGIN_M) for n in names]
-    window = load_world(WORLDS / "p12_test_window.json")
+    window = load_world(SHARED_WORLDS / "p12_test_window.json")
     out.append(("p12_test_window.json", window.resolution, window.margin))
     return out
 
@@ -128,7 +128,7 @@ def bench_astar(repeats: int) -> None:
     print("-" * len(header))
     ratios = []
     for name, res, margin in cases():
-        world = load_world(WORLDS / name)
+        world = load_world(SHARED_WORLDS / name)
         map_times, grid = timed(lambda: OccupancyGrid.from_world(world, res, margin), repeats)  # noqa: B023
         ours_times, ours = timed(lambda: astar(grid, world.start, world.goal), repeats)  # noqa: B023
         t0 = time.perf_counter()
@@ -171,7 +171,7 @@ def bench_minsnap(repeats: int) -> None:
         f"{'clear m':>7s} {'T s':>6s}"
     )
     for name, res, margin in cases():
-        world = load_world(WORLDS / name)
+        world = load_world(SHARED_WORLDS / name)
         path = astar(OccupancyGrid.from_world(world, res, margin), world.start, world.goal).path_m
         t, plan = timed(lambda: plan_min_snap(path, world, margin, settings), max(1, repeats // 2))  # noqa: B023
         print(
@@ -184,8 +184,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    if not WORLDS.is_dir():
-        print(f"world files not found at {WORLDS}", file=sys.stderr)
+    if not SHARED_WORLDS.is_dir():
+        print(f"world files not found at {SHARED_WORLDS}", file=sys.stderr)
         return 2
     bench_astar(args.repeats)
     bench_minsnap(args.repeats)

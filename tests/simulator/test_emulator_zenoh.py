@@ -14,7 +14,6 @@ import hashlib
 import json
 import math
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -23,6 +22,7 @@ from collections.abc import Callable
 from contextlib import contextmanager
 
 import pytest
+from testsupport import free_port
 
 from link.clock import NS_PER_S, ClockAck, ClockTick, unpack_tick
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
@@ -100,9 +100,7 @@ def hover_script(thrust_n: float) -> Script:
 
 
 def free_endpoint() -> str:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+    return f"tcp/127.0.0.1:{free_port()}"
 
 
 class Responder:

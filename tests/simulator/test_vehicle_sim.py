@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from testsupport import shared_world
 
 from link.messages import (
     AttitudeTarget,
@@ -30,7 +31,6 @@ from simulator.vehicle_sim import SimVehicle
 
 CF = load_vehicle("crazyflie")
 ROOM = load_mocap_room("vicon")
-WORLDS = Path(__file__).resolve().parents[3] / "shared" / "worlds"
 
 
 def _scripted_run(seed: int, seconds: float = 1.0):
@@ -122,9 +122,7 @@ def test_an_uplink_delivered_later_waits_for_its_time():
 
 
 def test_crash_into_a_course_wall_is_reported_with_time_and_place():
-    path = WORLDS / "test_lab_1.json"
-    if not path.is_file():
-        pytest.skip(f"course worlds not found at {WORLDS} (../shared is absent)")
+    path = shared_world("test_lab_1")
     world = load_world(path)
     sim = SimVehicle(CF, np.random.default_rng(3), world=world, initial_position_enu_m=tuple(world.start),
                      airborne=True)
