@@ -1,10 +1,17 @@
 """`cfstack groundstation`, `cfstack fly` and `cfstack step`.
 
-Takes in: command-line options.
-Gives out: a flown session (logs in --log DIR), a human summary or one JSON object on stdout
-(`--json`), exit code 0 only for a successful flight (1 otherwise, 2 for bad input).
-`fly` starts an emulator as a child process on loopback zenoh unless told to connect to one;
-the ground station never imports the simulator: the child is another program.
+Takes in: command-line options, each checked before anything starts (a bad one is one line on stderr and
+exit code 2, never a usage block, a hang or a traceback); world files, checked by the pre-flight rules
+(groundstation.preflight: a start or goal on the bounds is moved inward by the collision radius, with a
+warning; one in or beside a block is refused).
+Gives out: a flown session (logs in --log DIR), a human summary or one JSON object on stdout (`--json`),
+one line on stderr for a crash or a failsafe (what, where, when), and an exit code that follows the
+mission: 0 when the goal was reached without a collision in flight (whatever the landing after it did),
+1 otherwise, 2 for bad input.
+`fly` and `step` start an emulator as a child process on a private loopback zenoh endpoint;
+`groundstation` flies whatever answers at the default endpoint (DEFAULT_ENDPOINT, where `cfstack
+emulator` listens by default) or at --connect/--listen. The ground station never imports the simulator:
+the child is another program.
 """
 
 from __future__ import annotations
@@ -24,14 +31,16 @@ import numpy as np
 
 from groundstation.child_process import die_with_parent
 from groundstation.planned import plan_track
-from groundstation.session import SessionOptions, dump_json, human_summary, run_session
+from groundstation.preflight import checked_world
+from groundstation.session import DEFAULT_RATE_HZ, SessionOptions, dump_json, human_summary, run_session
 from groundstation.step_analysis import analyze_step, plot_step
 from groundstation.trajectories.basic import Step, load_trajectory_params, make_builtin
-from link.keys import DEFAULT_PREFIX
+from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.base import free_loopback_port
-from link.transports.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
-from model.errors import UserError
+from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
+from model.errors import OneLineParser, UserError
+from model.options import float_in, non_negative_float, positive_float, seed, whole_number
 from model.vehicle import load_vehicle
 from model.world import World, load_world
 
@@ -42,46 +51,91 @@ DEFAULT_PLANNED = "minsnap"
 # loop stable to 100 ms instead of 10 ms; in attitude mode it wins from 10 ms on but costs ~2 mm of peak
 # tracking error at zero latency, so there it stays an option.
 COMPENSATION_DEFAULT = {"moments": True, "attitude": False}
+# The highest control rate: the emulator's physics step (1 kHz); faster commands would share a step.
+MAX_RATE_HZ = 1000.0
+EMULATOR_START_CHECK_S = 0.05  # how long `fly` gives its emulator child to fail on its own options
 
 
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--mode", choices=("moments", "attitude"), default="moments",
+def _flight_arguments(p: argparse.ArgumentParser) -> None:
+    """How any session flies: mode, rate, vehicle, gains, logs (fly, step and groundstation)."""
+    g = p.add_argument_group("flight")
+    g.add_argument("--mode", choices=("moments", "attitude"), default="moments",
                    help="command mode: thrust+moments (500 Hz default) or thrust+attitude (100 Hz default)")
-    p.add_argument("--rate", type=float, help="control rate, Hz")
-    p.add_argument("--trajectory", help="hover|line|circle; with a world that has a start and goal: "
-                   f"constant-speed|minsnap (default {DEFAULT_PLANNED}, planned from start to goal)")
-    p.add_argument("--speed", type=float, help="planned speed, m/s (constant-speed: the speed; minsnap: the limit)")
-    p.add_argument("--planning", default="planning",
-                   help="planning parameters: a name (planning, planning_aggressive) or a TOML file")
-    p.add_argument("--accel", type=float, help="minsnap acceleration limit, m/s^2 (default: planning.toml; the "
-                   "thrust-to-weight limit applies on top)")
-    p.add_argument("--resolution", type=float, nargs="+", metavar="R",
-                   help="planning voxel size, m: one value or three (default: the world's, else planning.toml)")
-    p.add_argument("--margin", type=float, help="planning clearance to blocks, m (default: the world's, else 0.2)")
-    p.add_argument("--log", help="log folder (default: a new timestamped folder under ./flights/)")
-    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    p.add_argument("--vehicle", type=int, default=1, help="vehicle id (MAVLink system id)")
-    p.add_argument("--vehicle-model", default="crazyflie", help="vehicle parameters: name or TOML file")
-    p.add_argument("--gains", default="gains", help="controller gains: name or TOML file")
-    p.add_argument("--latency-compensation", action=argparse.BooleanOptionalAction, default=None,
+    g.add_argument("--rate", type=float_in(0.0, MAX_RATE_HZ, "Hz"), metavar="HZ",
+                   help=f"control rate, Hz, above 0 and at most {MAX_RATE_HZ:g} "
+                        f"(default {DEFAULT_RATE_HZ['moments']:g} in moments mode, "
+                        f"{DEFAULT_RATE_HZ['attitude']:g} in attitude mode)")
+    g.add_argument("--log", help="log folder (default: a new timestamped folder under ./flights/)")
+    g.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    g.add_argument("--vehicle", type=whole_number(1, "a vehicle id", MAX_VEHICLE_ID), default=1,
+                   help=f"vehicle id (MAVLink system id, 1..{MAX_VEHICLE_ID})")
+    g.add_argument("--vehicle-model", default="crazyflie", help="vehicle parameters: name or TOML file")
+    g.add_argument("--gains", default="gains", help="controller gains: name or TOML file")
+    g.add_argument("--latency-compensation", action=argparse.BooleanOptionalAction, default=None,
                    help="predict the state to when each command will act (one-way latency from TIMESYNC), "
                         "holding the commands already sent (default: on in moments mode, off in attitude mode; "
                         "see README, stability map)")
-    p.add_argument("--controller", choices=("report", "full"),
+    g.add_argument("--controller", choices=("report", "full"),
                    help="SE(3) law: the lab report's (w_des = 0) or the full geometric controller with angular "
                         "velocity/acceleration feed-forward (default: the gains file's variant)")
-    p.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
-    p.add_argument("-v", "--verbose", action="store_true")
+    g.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
+    g.add_argument("-v", "--verbose", action="store_true")
     add_zenoh_arguments(p, mode_flag="--zenoh-mode")
     add_signing_arguments(p)
 
 
-def _setup_logging(args) -> None:
+def _planning_arguments(p: argparse.ArgumentParser) -> None:
+    """What to fly: a built-in trajectory or one planned through a world (fly and groundstation)."""
+    g = p.add_argument_group("trajectory and planning")
+    g.add_argument("--trajectory", help="hover|line|circle; with a world that has a start and goal: "
+                   f"constant-speed|minsnap (default {DEFAULT_PLANNED}, planned from start to goal)")
+    g.add_argument("--speed", type=positive_float, metavar="MPS",
+                   help="planned speed, m/s (constant-speed: the speed; minsnap: the limit)")
+    g.add_argument("--planning", default="planning",
+                   help="planning parameters: a name (planning, planning_aggressive) or a TOML file")
+    g.add_argument("--accel", type=positive_float, metavar="MPS2",
+                   help="minsnap acceleration limit, m/s^2 (default: planning.toml; the thrust-to-weight limit "
+                        "applies on top)")
+    g.add_argument("--resolution", type=positive_float, nargs="+", metavar="R",
+                   help="planning voxel size, m: one value or three (default: the world's, else planning.toml)")
+    g.add_argument("--margin", type=non_negative_float, metavar="M",
+                   help="planning clearance to blocks and walls, m (default: the world's, else planning.toml)")
+
+
+def _emulator_arguments(p: argparse.ArgumentParser) -> None:
+    """The emulator child that fly and step start."""
+    g = p.add_argument_group("emulator child")
+    g.add_argument("--radio", default="crazyradio", help="radio profile for the emulator: name or TOML file")
+    g.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
+    g.add_argument("--seed", type=seed, default=1, help="seed of every random source (0, 1, 2, ...)")
+    g.add_argument("--from-ground", action="store_true", help="take off from the floor below the start")
+    g.add_argument("--emulator-arg", dest="emulator_extra", action="append", default=[], metavar="ARG",
+                   help="passed to the emulator child, e.g. --emulator-arg=--cut-mocap=8:2 (repeatable)")
+
+
+def _parsed(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    args = p.parse_args(argv)
+    resolution = getattr(args, "resolution", None)
+    if resolution is not None and len(resolution) not in (1, 3):
+        raise UserError(f"argument --resolution: give one value or three, not {len(resolution)} "
+                        f"(see '{p.prog} --help')")
     level = logging.INFO if args.verbose else logging.WARNING
     logging.basicConfig(level=level, format="%(name)s: %(message)s", stream=sys.stderr)
+    return args
 
 
-def _track(args, world: World | None, start_airborne: bool):
+def _world(path: str | None, vehicle_model: str) -> World | None:
+    """The world, its start and goal checked before anything starts (warnings on stderr, one line each)."""
+    if path is None:
+        return None
+    world = load_world(path)
+    world, nudges = checked_world(world, load_vehicle(vehicle_model).collision_radius_m)
+    for warning in (*world.warnings, *nudges):
+        print(f"warning: {warning}", file=sys.stderr)
+    return world
+
+
+def _track(args, world: World | None):
     """The trajectory to track and the goal: built-in, or planned through the world."""
     if world is not None and world.start is not None and world.goal is not None \
             and args.trajectory not in BUILTIN_TRAJECTORIES:
@@ -90,6 +144,9 @@ def _track(args, world: World | None, start_airborne: bool):
                              accel_mps2=args.accel, planning=args.planning)
         return planned.trajectory, planned.goal_enu_m, planned.summary, planned.plan
     name = args.trajectory or "hover"
+    if name not in BUILTIN_TRAJECTORIES:
+        raise UserError(f"--trajectory {name}: one of {', '.join(BUILTIN_TRAJECTORIES)}"
+                        + ("" if world is not None else " (planned trajectories need a world with a start and goal)"))
     floor = float(world.bounds[4]) if world is not None else 0.0
     if world is not None and world.start is not None:
         start = np.array(world.start, float)
@@ -97,8 +154,6 @@ def _track(args, world: World | None, start_airborne: bool):
         from groundstation.mission import load_mission_params
 
         start = np.array([0.0, 0.0, floor + load_mission_params().takeoff_height_m])
-    if name not in BUILTIN_TRAJECTORIES:
-        raise UserError(f"--trajectory {name}: one of {', '.join(BUILTIN_TRAJECTORIES)}")
     track = make_builtin(name, start)
     return track, np.asarray(track.sample(track.duration_s).position_m, float), {"trajectory": name}, None
 
@@ -110,30 +165,40 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
         vehicle_model=args.vehicle_model, gains=args.gains, controller_variant=args.controller,
         latency_compensation=(args.latency_compensation if args.latency_compensation is not None
                               else COMPENSATION_DEFAULT[args.mode]), log_dir=Path(args.log) if args.log else None,
-        signing=signing_from_args(args), extra_summary=extra, plan=plan)
+        signing=signing_from_args(args), extra_summary=extra, plan=plan,
+        allow_reset=getattr(args, "reset", False))
 
 
-def _report(summary: dict, as_json: bool) -> int:
-    if as_json:
-        print(dump_json(summary))
-    else:
-        print(human_summary(summary))
-    return 0 if summary["result"] == "reached_goal" else 1
+def _report(summary: dict, as_json: bool, prog: str) -> int:
+    """Print the summary (and the failure line on stderr); the exit code follows the mission."""
+    failure = summary.get("failure")
+    if failure is not None:
+        print(f"{prog}: {failure['reason']}", file=sys.stderr)
+    print(dump_json(summary) if as_json else human_summary(summary))
+    return 0 if summary["reached_goal"] and not summary["collided"] else 1
 
 
 def groundstation_command(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="cfstack groundstation",
-                                description="Fly whatever vehicle answers on the link (emulator or real).")
-    _common(p)
-    p.add_argument("--world", help="world JSON (for planning, clearance and the floor)")
+    p = OneLineParser(prog="cfstack groundstation",
+                      description="Fly whatever vehicle answers on the link (emulator or real).")
+    _flight_arguments(p)
+    _planning_arguments(p)
+    p.add_argument("--world", help="world JSON (for planning, clearance, landing spots and the floor)")
     p.add_argument("--clock", choices=("lockstep", "realtime"), default="realtime",
-                   help="realtime for a real vehicle or a realtime emulator; lockstep to follow an emulator's clock")
-    args = p.parse_args(argv)
-    _setup_logging(args)
-    world = load_world(args.world) if args.world else None
-    track, goal, extra, plan = _track(args, world, start_airborne=False)
-    result = run_session(_options(args, world, track, goal, extra, plan, args.clock, zenoh_options_from_args(args)))
-    return _report(result.summary, args.json)
+                   help="realtime (default) for a real vehicle or a realtime emulator; lockstep to follow an "
+                        "emulator's clock")
+    p.add_argument("--reset", action="store_true",
+                   help="if the vehicle already reports CRASHED, ask it to reboot (MAVLink "
+                        "MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN; the emulator then puts it back, disarmed, below its "
+                        "start) and fly from there; logged")
+    args = _parsed(p, argv)
+    world = _world(args.world, args.vehicle_model)
+    track, goal, extra, plan = _track(args, world)
+    zopts = zenoh_options_from_args(args)
+    if not zopts.get("connect") and not zopts.get("listen"):
+        zopts["connect"] = [DEFAULT_ENDPOINT]  # where `cfstack emulator` listens by default
+    result = run_session(_options(args, world, track, goal, extra, plan, args.clock, zopts))
+    return _report(result.summary, args.json, p.prog)
 
 
 class FlightFailed(UserError):
@@ -145,14 +210,15 @@ class FlightFailed(UserError):
 class EmulatorChild:
     """`cfstack emulator` as a child process on a private loopback zenoh endpoint."""
 
-    def __init__(self, args, world_path: str | None, airborne: bool, clock: str):
-        port = free_loopback_port()
-        self.endpoint = f"tcp/127.0.0.1:{port}"
+    def __init__(self, args, world_path: str | None, start: np.ndarray | None, airborne: bool, clock: str):
+        self.endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
         cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
                "--radio", args.radio, "--seed", str(args.seed), "--id", args.prefix,
                "--vehicle-model", args.vehicle_model, "--quiet"]
         if world_path:
             cmd += ["--world", world_path]
+        if start is not None:  # the pre-flight-checked start (it may have been moved inside the bounds)
+            cmd += ["--start", *(repr(float(v)) for v in start)]
         if airborne:
             cmd += ["--airborne"]
         cmd += getattr(args, "emulator_extra", [])
@@ -174,12 +240,13 @@ class EmulatorChild:
         return f"the emulator stopped: {err[-1]}" if err else f"the emulator stopped (exit {self.proc.returncode})"
 
     def check_started(self) -> None:
-        time.sleep(0.05)
+        time.sleep(EMULATOR_START_CHECK_S)
         if self.proc.poll() is not None:
             err = self._stderr_lines()
             raise UserError(err[-1] if err else "the emulator child exited at start")
 
-    def stop(self) -> str:
+    def stop(self) -> list[str]:
+        """Stop the child; its stderr lines (the summary last)."""
         if self.proc.poll() is None:
             self.proc.terminate()
         try:
@@ -189,44 +256,31 @@ class EmulatorChild:
             self.proc.wait()
         lines = self._stderr_lines()
         self.stderr.close()
-        return lines[-1] if lines else ""
-
-
-def _session_arguments(p: argparse.ArgumentParser) -> None:
-    """What `fly` and `step` share: the emulator they start and how they fly against it."""
-    _common(p)
-    p.add_argument("--radio", default="crazyradio", help="radio profile for the emulator")
-    p.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
-    p.add_argument("--seed", type=int, default=1, help="seed of every random source")
-    p.add_argument("--from-ground", action="store_true", help="take off from the floor below the start")
-    p.add_argument("--emulator-arg", dest="emulator_extra", action="append", default=[], metavar="ARG",
-                   help="passed to the emulator child, e.g. --emulator-arg=--cut-mocap=8:2 (repeatable)")
+        return lines
 
 
 def fly_command(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="cfstack fly",
-                                description="One command: start an emulator, fly, land, log, summarise.")
+    p = OneLineParser(prog="cfstack fly", description="One command: start an emulator, fly, land, log, summarise.")
     p.add_argument("world", nargs="?", help="world JSON file (default: an empty room)")
-    _session_arguments(p)
-    args = p.parse_args(argv)
-    _setup_logging(args)
-    world = load_world(args.world) if args.world else None
-    if world is not None:
-        for warning in world.warnings:
-            print(f"warning: {warning}", file=sys.stderr)
+    _flight_arguments(p)
+    _planning_arguments(p)
+    _emulator_arguments(p)
+    args = _parsed(p, argv)
+    world = _world(args.world, args.vehicle_model)
     airborne = not args.from_ground and world is not None and world.start is not None
-    track, goal, extra, plan = _track(args, world, start_airborne=airborne)
-    result = _fly_with_emulator(args, world, airborne, _options(args, world, track, goal, extra, plan, args.clock,
-                                                                  zenoh_options_from_args(args)))
-    return _report(result.summary, args.json)
+    track, goal, extra, plan = _track(args, world)
+    opts = _options(args, world, track, goal, extra, plan, args.clock, zenoh_options_from_args(args))
+    result = _fly_with_emulator(args, world, airborne, opts)
+    return _report(result.summary, args.json, p.prog)
 
 
-def _fly_with_emulator(args, world, airborne: bool, opts: SessionOptions):
+def _fly_with_emulator(args, world: World | None, airborne: bool, opts: SessionOptions):
     """Run the session against a child emulator (or the one --connect names)."""
     zopts = opts.zenoh_options
     child = None
     if not zopts.get("connect"):
-        child = EmulatorChild(args, getattr(args, "world", None), airborne, args.clock)
+        start = world.start if world is not None else None
+        child = EmulatorChild(args, getattr(args, "world", None), start, airborne, args.clock)
         child.check_started()
         opts.zenoh_options = {**zopts, "connect": [child.endpoint], "listen": []}
         opts.peer_failure = child.failure
@@ -234,23 +288,30 @@ def _fly_with_emulator(args, world, airborne: bool, opts: SessionOptions):
         return run_session(opts)
     finally:
         if child is not None:
-            line = child.stop()
-            if line and args.verbose:
-                print(line, file=sys.stderr)
+            for line in child.stop():
+                if args.verbose:
+                    print(line, file=sys.stderr)
+
+
+def _step_size(text: str) -> float:
+    value = float_in(-math.inf, math.inf)(text)
+    if value == 0.0:
+        raise argparse.ArgumentTypeError("must be a non-zero number of metres")
+    return value
 
 
 def step_command(argv: list[str]) -> int:
     """The lab report's tuning experiment: hover, step along one axis, measure the response."""
     defaults = load_trajectory_params().step
-    p = argparse.ArgumentParser(prog="cfstack step", description=step_command.__doc__)
-    p.add_argument("--axis", choices=("x", "y", "z"), default=defaults.axis)
-    p.add_argument("--size", type=float, default=defaults.size_m, help="step size, m")
-    p.add_argument("--hold", type=float, default=defaults.hold_s, help="time to hold after the step, s")
-    _session_arguments(p)
-    args = p.parse_args(argv)
-    _setup_logging(args)
-    if not math.isfinite(args.size) or args.size == 0:
-        raise UserError(f"--size {args.size}: must be a non-zero number of metres")
+    p = OneLineParser(prog="cfstack step", description=step_command.__doc__)
+    g = p.add_argument_group("step")
+    g.add_argument("--axis", choices=("x", "y", "z"), default=defaults.axis)
+    g.add_argument("--size", type=_step_size, default=defaults.size_m, help="step size, m (non-zero)")
+    g.add_argument("--hold", type=non_negative_float, default=defaults.hold_s,
+                   help="time to hold after the step, s")
+    _flight_arguments(p)
+    _emulator_arguments(p)
+    args = _parsed(p, argv)
     start = np.array([0.0, 0.0, load_trajectory_params().hover.height_m])
     track = Step(start, args.axis, args.size, hold_s=args.hold, step_at_s=defaults.step_at_s)
     goal = track.end_m
@@ -267,7 +328,7 @@ def step_command(argv: list[str]) -> int:
     else:
         print(human_summary(result.summary))
         print(step_report(metrics, png))
-    return 0 if result.summary["result"] == "reached_goal" else 1
+    return 0 if result.summary["reached_goal"] else 1
 
 
 def analyse_step_flight(result, track: Step, axis: str) -> tuple[dict, Path]:

@@ -25,6 +25,7 @@ from groundstation.mission import Mission, MissionParams, MissionStep, Phase, Ve
 from link.messages import (
     AttitudeTarget,
     BatteryStatus,
+    CrashReport,
     Heartbeat,
     ImuSample,
     MocapPose,
@@ -71,10 +72,12 @@ class FlightRecord:
     est_vel: list[np.ndarray] = field(default_factory=list)
     truth: list[np.ndarray | None] = field(default_factory=list)
     truth_vel: list[np.ndarray | None] = field(default_factory=list)
+    truth_att: list[np.ndarray | None] = field(default_factory=list)  # quaternion (w, x, y, z)
     # truth at the estimate's own sample time (the estimate lags the tick by the link's latency), so the
     # estimator is graded on what it estimates, not on the link's delay
     truth_at_est: list[np.ndarray | None] = field(default_factory=list)
     truth_vel_at_est: list[np.ndarray | None] = field(default_factory=list)
+    crash: CrashReport | None = None  # simulation only: how the flight ended, when it ended in a crash
 
 
 class FlightLoop:
@@ -102,6 +105,8 @@ class FlightLoop:
         self.timesync = TimeSyncTracker(clock=clock.now, stats=link.radio.stats)
         self.interrupts = 0
         self._uplink_latency_s: float | None = None
+        self.last_pose: MocapPose | None = None
+        self._resets_seen = 0
 
     # --- inputs ----------------------------------------------------------------------------------
     def absorb(self, now_s: float) -> None:
@@ -122,12 +127,15 @@ class FlightLoop:
                 self.health.last_radio = msg
         for rx in inbox.mocap:
             if isinstance(rx.message, MocapPose):
+                self.last_pose = rx.message
                 self.estimator.add_mocap(rx.message)
                 self.health.mocap_times.append(now_s)
         for rx in inbox.truth:
             if isinstance(rx.message, TruthState):
                 self.truth = rx.message
                 self.truth_history.append(rx.message)
+            elif isinstance(rx.message, CrashReport) and self.record.crash is None:
+                self.record.crash = rx.message
         # The filter changes only here: one estimate serves the view, the controller and the log row.
         self.estimate = self.estimator.estimate() if self.estimator.initialised else None
 
@@ -260,6 +268,11 @@ class FlightLoop:
         self.send_housekeeping(now)
         view = self.view(now)
         step = self.mission.update(now, view)
+        if self.mission.resets != self._resets_seen and self.last_pose is not None:
+            # the vehicle was put back where it started: restart the filter there, not across the jump
+            self._resets_seen = self.mission.resets
+            self.estimator.initialise(self.last_pose)
+            self.estimate = self.estimator.estimate()
         out = None
         if step.command is not None:
             self.link.send(VehicleCommand(now, step.command))
@@ -308,6 +321,7 @@ class FlightLoop:
         record.est_vel.append(est_vals and est_vals[3:6])
         record.truth.append(truth_vals and truth_vals[:3])
         record.truth_vel.append(truth_vals and truth_vals[3:6])
+        record.truth_att.append(truth_vals and truth_vals[6:10])
         at_est = None if est is None else self.truth_at(est.time_s)
         record.truth_at_est.append(None if at_est is None else at_est[0])
         record.truth_vel_at_est.append(None if at_est is None else at_est[1])

@@ -1,9 +1,20 @@
 """The mission: connect, arm, take off, settle, track, hover, land, disarm - and the failsafes.
 
 Takes in: the time (s), the state estimate and its health, what the vehicle reports (heartbeat,
-downlink age), the trajectory to track and mission parameters (params/mission.toml).
+downlink age), the trajectory to track, the world (for the landing spot) and the vehicle's collision
+radius, and mission parameters (params/mission.toml).
 Gives out: each tick, the phase, the reference to fly (a FlatOutput) or None (send nothing), and a
-vehicle command to send (arm, disarm) when one is due.
+vehicle command to send (arm, disarm, land, reboot) when one is due; at the end, the mission's result
+(`result`: reached_goal, timeout, failsafe, aborted, crashed) kept apart from what happened after it
+(`landing`: landed, crashed, or not attempted, and where).
+
+Landing: from where it hovers, the vehicle flies to the nearest clear spot (groundstation.landing: straight
+down when the footprint is clear, else the nearest clear floor or pad top) and descends there; with no
+clear spot within the search radius it hovers `no_spot_hover_s`, says so, then asks the vehicle's own
+LAND. A crash while landing after the goal leaves the mission's result as it was.
+Reset: a vehicle that already reports CRASHED when the session starts ends the session at once (result
+"crashed", with the reason), unless the session may reset it (`allow_reset`): then it sends REBOOT until
+the vehicle reports it is no longer crashed, and flies from where the vehicle now stands.
 
 update() runs every control tick (500 Hz): what does not change between ticks (the phase handlers, the
 phase sets, the goal as floats) is built once, and distances are taken on floats (math.dist), not numpy.
@@ -17,11 +28,13 @@ from enum import Enum
 
 import numpy as np
 
-from groundstation.trajectories.basic import Hover, Line
+from groundstation.landing import LandingSettings, LandingSpot, find_landing_spot
+from groundstation.trajectories.basic import Chain, Hover, Line
 from groundstation.trajectories.flat import at_rest
 from groundstation.trajectory import FlatOutput, Trajectory
 from link.messages import CommandKind
 from model.config import Params, resolve
+from model.world import World
 
 COMMAND_REPEAT_S = 0.25  # arm/land commands are repeated this often until the vehicle reports them done
 
@@ -38,11 +51,15 @@ class Phase(Enum):
     DONE = "done"
     FAILSAFE_HOLD = "failsafe_hold"
     FAILSAFE_DESCENT = "failsafe_descent"
+    RESET = "reset"  # asking a crashed vehicle to reboot before the flight
+    VEHICLE_LAND = "vehicle_land"  # no clear landing spot: the vehicle's own LAND
 
 
 # Phase sets the state machine tests every tick (tuples: `in` compares members by identity, no hashing).
-_NO_FAILSAFE_PHASES = (Phase.DONE, Phase.DISARM, Phase.CONNECT)  # nothing airborne to protect
-_NO_MOCAP_FAILSAFE_PHASES = (Phase.ARM, Phase.FAILSAFE_DESCENT)  # on the ground, or the vehicle lands itself
+_NO_FAILSAFE_PHASES = (Phase.DONE, Phase.DISARM, Phase.CONNECT, Phase.RESET)  # nothing airborne to protect
+# on the ground, or the vehicle lands itself
+_NO_MOCAP_FAILSAFE_PHASES = (Phase.ARM, Phase.FAILSAFE_DESCENT, Phase.VEHICLE_LAND)
+_LANDING_PHASES = (Phase.LAND, Phase.VEHICLE_LAND, Phase.DISARM)  # after the mission's result is decided
 _ABORTABLE_PHASES = (Phase.ARM, Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.HOVER)
 
 
@@ -71,13 +88,17 @@ class MissionParams:
     mocap_rate_max_hz: float
     delivery_ratio_min: float
     latency_max_ms: float
+    landing: LandingSettings
+    landing_move_speed_mps: float
+    no_spot_hover_s: float
 
 
 def load_mission_params(name_or_path: str = "mission") -> MissionParams:
     p = Params.load(resolve(name_or_path, "groundstation", "params", "mission parameters"))
     timing, motion, goal = p.table("timing"), p.table("motion"), p.table("goal")
-    failsafe, health = p.table("failsafe"), p.table("link_health")
+    failsafe, health, landing = p.table("failsafe"), p.table("link_health"), p.table("landing")
     pos = {"minimum": 0.0}
+    positive = {"minimum": 1e-6}
     return MissionParams(
         **{k: timing.number(k, **pos) for k in ("connect_timeout_s", "arm_timeout_s", "settle_s", "end_hover_s",
                                                  "max_end_hover_s", "heartbeat_period_s", "timesync_period_s",
@@ -91,6 +112,10 @@ def load_mission_params(name_or_path: str = "mission") -> MissionParams:
                                                    "downlink_silent_after_s")},
         **{k: health.number(k, **pos) for k in ("mocap_rate_min_hz", "mocap_rate_max_hz", "delivery_ratio_min",
                                                  "latency_max_ms")},
+        landing=LandingSettings(**{k: landing.number(k, **positive) for k in (
+            "search_radius_m", "search_step_m", "safety_m", "path_check_step_m")}),
+        landing_move_speed_mps=landing.number("move_speed_mps", **positive),
+        no_spot_hover_s=landing.number("no_spot_hover_s", **pos),
     )
 
 
@@ -110,6 +135,17 @@ class VehicleView:
 
 
 @dataclass
+class LandingOutcome:
+    """What happened after the mission's result was decided."""
+
+    result: str = "not_attempted"  # landed | crashed | not_attempted (the session ended airborne or earlier)
+    spot_enu_m: list[float] | None = None  # where it descended to
+    moved_m: float | None = None  # horizontal move from the hover point to the spot
+    on_block: int | None = None  # index of the block it landed on (a pad); None: the floor
+    note: str | None = None  # e.g. no clear spot within the search radius
+
+
+@dataclass
 class MissionStep:
     phase: Phase
     reference: FlatOutput | None  # None: send no setpoint this tick
@@ -119,11 +155,14 @@ class MissionStep:
 class Mission:
     """A state machine over Phase. `track` is a trajectory in world coordinates starting at its t=0."""
 
-    def __init__(self, params: MissionParams, track: Trajectory, ground_height, goal_enu_m: np.ndarray):
-        """`ground_height(point) -> z` gives the surface to land on below a point (floor or landing pad)."""
+    def __init__(self, params: MissionParams, track: Trajectory, goal_enu_m: np.ndarray, world: World | None,
+                 collision_radius_m: float, allow_reset: bool = False):
         self.p = params
         self.track = track
-        self.ground_height = ground_height
+        self.world = world
+        self.ground_height = world.support_height if world is not None else _floor_of_empty_room
+        self.collision_radius_m = collision_radius_m
+        self.allow_reset = allow_reset
         self.goal = np.asarray(goal_enu_m, float)
         self._goal = self.goal.tolist()
         self.arrival_s = final_arrival_time(track, self.goal, params.goal_position_tolerance_m)
@@ -134,6 +173,10 @@ class Mission:
         self.reached_goal_s: float | None = None
         self.result: str | None = None  # reached_goal | timeout | failsafe | aborted | crashed
         self.failsafe_reason: str | None = None
+        self.failsafe_at: tuple[float, str] | None = None  # (time, phase) when failsafe_reason was set
+        self.landing = LandingOutcome()
+        self.crash_seen: tuple[float, str] | None = None  # (time, phase) when the vehicle reported CRASHED
+        self.resets = 0  # vehicles this session asked to reboot (and saw come back)
         self.abort_requested = False
         self._last_sent_s: dict[CommandKind, float] = {}  # when each repeated command last went out
 
@@ -146,6 +189,12 @@ class Mission:
         self._last_sent_s[kind] = t
         return kind
 
+    def _fail(self, t: float, result: str, reason: str) -> None:
+        """End the mission's result with a reason, remembering when and in which phase."""
+        self.result = result
+        self.failsafe_reason = reason
+        self.failsafe_at = (t, self.phase.value)
+
     def _enter(self, phase: Phase, t: float, segment: Trajectory | None = None) -> None:
         self.phase = phase
         self.phase_start_s = t
@@ -157,10 +206,29 @@ class Mission:
     def _hold(self, position: np.ndarray, t: float) -> Trajectory:
         return Hover(np.asarray(position, float), duration_s=1e9)
 
-    def _descent(self, view: VehicleView) -> Trajectory:
-        target = view.position_enu_m.copy()
-        target[2] = self.ground_height(target)
-        return Line(view.position_enu_m, target, speed_mps=self.p.landing_speed_mps)
+    def _begin_landing(self, t: float, view: VehicleView) -> None:
+        """Enter LAND towards the nearest clear spot (groundstation.landing), or hover and then hand the
+        landing to the vehicle when there is none."""
+        here = np.asarray(view.position_enu_m, float)
+        spot = self._landing_spot(here)
+        if spot is None:
+            self.landing.note = (f"no clear landing spot within {self.p.landing.search_radius_m:g} m: hovered "
+                                 f"{self.p.no_spot_hover_s:g} s, then the vehicle's own LAND")
+            self._enter(Phase.LAND, t, Hover(here, self.p.no_spot_hover_s))
+            return
+        self.landing.spot_enu_m = spot.touchdown_m.tolist()
+        self.landing.moved_m = spot.moved_m
+        self.landing.on_block = spot.on_pad if spot.on_pad >= 0 else None
+        move = Line(here, spot.above_m, speed_mps=self.p.landing_move_speed_mps)
+        descent = Line(spot.above_m, spot.touchdown_m, speed_mps=self.p.landing_speed_mps)
+        self._enter(Phase.LAND, t, Chain(move, descent))
+
+    def _landing_spot(self, here: np.ndarray) -> LandingSpot | None:
+        if self.world is None:  # an empty room: straight down to the floor
+            floor = here.copy()
+            floor[2] = self.ground_height(here)
+            return LandingSpot(here.copy(), floor, -1, 0.0)
+        return find_landing_spot(self.world, here, self.collision_radius_m, self.p.landing)
 
     def reference_at(self, t: float) -> FlatOutput | None:
         """The current phase's reference at another time t (latency compensation looks ahead)."""
@@ -182,10 +250,10 @@ class Mission:
             return MissionStep(Phase.DONE, None)
         if self.phase == Phase.CONNECT:
             return self._connect(t, view)
+        if self.phase == Phase.RESET:
+            return self._reset(t, view)
         if view.crashed:
-            self.result = "crashed"
-            self._enter(Phase.DONE, t)
-            return MissionStep(Phase.DONE, None)
+            return self._crashed(t)
         failsafe = self._check_failsafes(t, view)
         if failsafe is not None:
             return failsafe
@@ -194,18 +262,48 @@ class Mission:
             if self.phase == Phase.ARM or not view.armed:
                 self._enter(Phase.DISARM, t)
             else:
-                self._enter(Phase.LAND, t, self._descent(view))
+                self._begin_landing(t, view)
         return self._HANDLERS[self.phase](self, t, view)
 
+    def _crashed(self, t: float) -> MissionStep:
+        """The vehicle reports CRASHED: after the goal (while landing) it is the landing's outcome, else the
+        mission's."""
+        self.crash_seen = (t, self.phase.value)
+        if self.phase in _LANDING_PHASES and self.result is not None:
+            self.landing.result = "crashed"
+        else:
+            self.result = "crashed"
+        self._enter(Phase.DONE, t)
+        return MissionStep(Phase.DONE, None)
+
     def _connect(self, t: float, view: VehicleView | None) -> MissionStep:
+        if view is not None and view.crashed:
+            if not self.allow_reset:
+                self._fail(t, "crashed", "the vehicle already reports CRASHED at the start of this session; "
+                                         "restart the emulator, or let this ground station reset it (--reset)")
+                self._enter(Phase.DONE, t)
+                return MissionStep(Phase.DONE, None)
+            self._enter(Phase.RESET, t)
+            return self._reset(t, view)
         if view is not None:
             self._enter(Phase.ARM, t)
             return self._arm(t, view)
         if t > self.p.connect_timeout_s:
-            self.result = "aborted"
-            self.failsafe_reason = "no heartbeat from the vehicle"
+            self._fail(t, "aborted", "no heartbeat from the vehicle")
             self._enter(Phase.DONE, t)
         return MissionStep(self.phase, None)
+
+    def _reset(self, t: float, view: VehicleView) -> MissionStep:
+        """Send REBOOT until the vehicle no longer reports CRASHED, then arm as usual."""
+        if not view.crashed:
+            self.resets += 1
+            self._enter(Phase.ARM, t)
+            return self._arm(t, view)
+        if t - self.phase_start_s > self.p.arm_timeout_s:
+            self._fail(t, "crashed", "the crashed vehicle did not come back after REBOOT")
+            self._enter(Phase.DONE, t)
+            return MissionStep(Phase.DONE, None)
+        return MissionStep(self.phase, None, self._repeated(CommandKind.REBOOT, t))
 
     def _arm(self, t: float, view: VehicleView) -> MissionStep:
         hold = at_rest(view.position_enu_m)
@@ -220,8 +318,7 @@ class Mission:
             self._enter(Phase.SETTLE, t, self._hold(start, t))
             return MissionStep(self.phase, self._segment_ref(t))
         if t - self.phase_start_s > self.p.arm_timeout_s:
-            self.result = "failsafe"
-            self.failsafe_reason = "vehicle did not arm"
+            self._fail(t, "failsafe", "vehicle did not arm")
             self._enter(Phase.DONE, t)
             return MissionStep(self.phase, None)
         return MissionStep(self.phase, hold, self._repeated(CommandKind.ARM, t))
@@ -249,13 +346,20 @@ class Mission:
         if (self.reached_goal_s is not None and waited >= self.p.end_hover_s) or waited >= self.p.max_end_hover_s:
             if self.result is None:
                 self.result = "reached_goal" if self.reached_goal_s is not None else "timeout"
-            self._enter(Phase.LAND, t, self._descent(view))
+            self._begin_landing(t, view)
         return MissionStep(self.phase, self._segment_ref(t))
 
     def _land(self, t: float, view: VehicleView) -> MissionStep:
         touched = view.position_enu_m[2] - self.ground_height(view.position_enu_m) <= self.p.touchdown_height_m
-        # the descent's own duration (it grows with the height) plus the slack land_timeout_s
+        if self.landing.note is not None and not touched:  # no clear spot: hovered, now the vehicle lands
+            if t - self.phase_start_s >= self.segment.duration_s:
+                self._enter(Phase.VEHICLE_LAND, t)
+                return self._vehicle_land(t, view)
+            return MissionStep(self.phase, self._segment_ref(t))
+        # the move and descent's own duration (it grows with the distance) plus the slack land_timeout_s
         if touched or t - self.phase_start_s > self.segment.duration_s + self.p.land_timeout_s:
+            if touched:
+                self.landing.result = "landed"
             self._enter(Phase.DISARM, t)
             return self._disarm(t, view)
         return MissionStep(self.phase, self._segment_ref(t))
@@ -265,6 +369,12 @@ class Mission:
             self._enter(Phase.DONE, t)
             return MissionStep(self.phase, None)
         return MissionStep(self.phase, None, CommandKind.DISARM)
+
+    def _vehicle_land(self, t: float, view: VehicleView) -> MissionStep:
+        """The vehicle's own LAND (no clear spot found): it descends where it is and disarms."""
+        if not view.armed:
+            self.landing.result = "landed"
+        return self._failsafe_descent(t, view)
 
     def _failsafe_descent(self, t: float, view: VehicleView) -> MissionStep:
         if not view.armed:
@@ -293,17 +403,15 @@ class Mission:
         if self.phase in _NO_FAILSAFE_PHASES:
             return None
         if view.downlink_age_s > self.p.downlink_silent_after_s:
-            self.result = "failsafe"
-            self.failsafe_reason = f"downlink silent for {view.downlink_age_s:.2f} s"
+            self._fail(t, "failsafe", f"downlink silent for {view.downlink_age_s:.2f} s")
             self._enter(Phase.DONE, t)
             return MissionStep(Phase.DONE, None)
         if not view.armed or self.phase in _NO_MOCAP_FAILSAFE_PHASES:
             return None
         lost = view.mocap_age_s
         if lost > self.p.mocap_descend_after_s or not view.estimator_healthy:
-            self.result = "failsafe"
-            self.failsafe_reason = ("estimator unhealthy" if lost <= self.p.mocap_descend_after_s
-                                    else f"mocap lost for {lost:.2f} s")
+            self._fail(t, "failsafe", "estimator unhealthy" if lost <= self.p.mocap_descend_after_s
+                       else f"mocap lost for {lost:.2f} s")
             # Without mocap the ground station's estimate drifts; the vehicle's own LAND descends on what it
             # measures itself until the floor holds it, then disarms.
             self._enter(Phase.FAILSAFE_DESCENT, t)
@@ -318,8 +426,13 @@ class Mission:
     _HANDLERS = {
         Phase.ARM: _arm, Phase.TAKEOFF: _takeoff, Phase.SETTLE: _settle, Phase.TRACK: _track,
         Phase.HOVER: _hover, Phase.LAND: _land, Phase.DISARM: _disarm, Phase.FAILSAFE_HOLD: _failsafe_hold,
-        Phase.FAILSAFE_DESCENT: _failsafe_descent,
+        Phase.FAILSAFE_DESCENT: _failsafe_descent, Phase.VEHICLE_LAND: _vehicle_land,
     }
+
+
+def _floor_of_empty_room(point) -> float:
+    """Without a world the floor is z = 0 (the emulator's empty room)."""
+    return 0.0
 
 
 def final_arrival_time(track: Trajectory, goal: np.ndarray, tolerance_m: float, step_s: float = 0.01) -> float:

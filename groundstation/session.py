@@ -1,15 +1,16 @@
 """A whole flight session: build the pieces, fly the mission, grade it, write the logs.
 
 Takes in: SessionOptions (connection, vehicle id, mode, rate, clock, trajectory or planned world, log dir).
-Gives out: the summary dict (the `--json` object of `cfstack fly`), written to summary.json too.
+Gives out: the summary dict (the `--json` object of `cfstack fly`; groundstation.grading says what is in
+it), written to summary.json too, and the human summary (only figures that mean something for the flight).
 Grading uses simulator truth when the link provides it (simulation only); control never does.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,15 @@ from groundstation.compensation import LatencyCompensator
 from groundstation.controller import SE3Controller, load_gains
 from groundstation.flight import FlightLoop
 from groundstation.flightlog import FlightLog, default_log_dir
+from groundstation.grading import (
+    TRACKING_PHASES,
+    course_grade,
+    failure,
+    load_course_rules,
+    min_clearance,
+    rms,
+    stack3,
+)
 from groundstation.mission import Mission, load_mission_params
 from groundstation.trajectory import Trajectory
 from groundstation.vehicle_link import VehicleLink
@@ -34,6 +44,8 @@ from model.world import World
 log = logging.getLogger("cfstack.groundstation")
 
 DEFAULT_RATE_HZ = {"moments": 500.0, "attitude": 100.0}
+# The course tests np.array_equal(start, end): a closed trajectory's end may differ from its start by rounding.
+COURSE_SAME_POINT_M = 1e-9
 
 
 @dataclass
@@ -58,6 +70,7 @@ class SessionOptions:
     extra_summary: dict = field(default_factory=dict)
     plan: dict | None = None
     peer_failure: object = None  # callable: why the emulator child stopped, or None while it runs
+    allow_reset: bool = False  # a vehicle already CRASHED at the start may be asked to reboot (--reset)
 
 
 @dataclass
@@ -72,7 +85,6 @@ def run_session(opts: SessionOptions) -> SessionResult:
     vehicle = load_vehicle(opts.vehicle_model)
     params = load_mission_params()
     world = opts.world
-    ground_height = world.support_height if world is not None else (lambda point: 0.0)
     log_dir = Path(opts.log_dir) if opts.log_dir else default_log_dir()
     keys = VehicleKeys(opts.prefix, opts.vehicle_id)
     wall_start = time.monotonic()
@@ -95,7 +107,8 @@ def run_session(opts: SessionOptions) -> SessionResult:
             clock_box["clock"] = clock
             estimator = ErrorStateKF(vehicle, load_mocap_room(opts.mocap_room))
             controller = SE3Controller(vehicle, load_gains(opts.gains), variant=opts.controller_variant)
-            mission = Mission(params, opts.track, ground_height, opts.goal_enu_m)
+            mission = Mission(params, opts.track, opts.goal_enu_m, world, vehicle.collision_radius_m,
+                              allow_reset=opts.allow_reset)
             compensator = LatencyCompensator(vehicle, opts.mode, period) if opts.latency_compensation else None
             loop = FlightLoop(link, clock, estimator, controller, mission, params, flight_log, opts.mode, period,
                               compensator)
@@ -109,102 +122,127 @@ def run_session(opts: SessionOptions) -> SessionResult:
     return SessionResult(summary, loop.record)
 
 
-def _stack(rows: list) -> np.ndarray:
-    return np.array([r if r is not None else [np.nan] * 3 for r in rows], float).reshape(-1, 3)
-
-
 def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s: float) -> dict:
-    rec = loop.record
-    t = np.array(rec.t)
-    phase = np.array(rec.phase)
-    ref, est, est_vel = _stack(rec.ref), _stack(rec.est), _stack(rec.est_vel)
-    truth, truth_vel = _stack(rec.truth), _stack(rec.truth_vel)
+    rec, mission = loop.record, loop.mission
+    t, phase = np.array(rec.t), np.array(rec.phase)
+    ref, est, est_vel = stack3(rec.ref), stack3(rec.est), stack3(rec.est_vel)
+    truth, truth_vel, truth_att = stack3(rec.truth), stack3(rec.truth_vel), stack3(rec.truth_att, 4)
     have_truth = bool(np.isfinite(truth).all(axis=1).any())
     flown, flown_vel = (truth, truth_vel) if have_truth else (est, est_vel)
-    tracking = np.isin(phase, ("track", "hover"))
+    tracking = np.isin(phase, TRACKING_PHASES)
     err = np.linalg.norm(flown - ref, axis=1)
     err_tracking = err[tracking & np.isfinite(err)]
-    airborne = np.isin(phase, ("takeoff", "settle", "track", "hover", "land", "failsafe_hold", "failsafe_descent"))
-    truth_at_est, truth_vel_at_est = _stack(rec.truth_at_est), _stack(rec.truth_vel_at_est)
-    valid = airborne & np.isfinite(truth_at_est).all(axis=1) & np.isfinite(est).all(axis=1)
-    est_pos_err = np.linalg.norm(est[valid] - truth_at_est[valid], axis=1)
-    est_vel_err = np.linalg.norm(est_vel[valid] - truth_vel_at_est[valid], axis=1)
     goal = np.asarray(opts.goal_enu_m, float)
-    track_start = loop.mission.track_start_s
-    reached_at = None
-    if track_start is not None:
-        after = (t >= track_start + loop.mission.arrival_s) & np.isfinite(flown).all(axis=1)
-        near = np.linalg.norm(flown - goal, axis=1) <= params.goal_position_tolerance_m
-        slow = np.linalg.norm(flown_vel, axis=1) <= params.goal_speed_tolerance_mps
-        hits = np.flatnonzero(after & near & slow)
-        if hits.size:
-            reached_at = float(t[hits[0]])
-    flown_track = flown[tracking & np.isfinite(flown).all(axis=1)]
-    path_length = float(np.linalg.norm(np.diff(flown_track, axis=0), axis=1).sum()) if len(flown_track) > 1 else None
-    hover_rows = np.flatnonzero(phase == "hover")
-    final_error = None
-    if hover_rows.size:
-        final_error = float(np.linalg.norm(flown[hover_rows[-1]] - goal))
-    min_clearance = None
-    world = opts.world
-    if world is not None and len(world.blocks) and have_truth:
-        # Clearance of the flight itself: take-off from and landing on a pad touch blocks by design.
-        flight = np.isin(phase, ("settle", "track", "hover", "failsafe_hold"))
-        pts = truth[flight & np.isfinite(truth).all(axis=1)]
-        if len(pts):
-            min_clearance = float(world.distance_to_blocks(pts).min())
-    crashed = loop.mission.result == "crashed"
-    result = loop.mission.result or "aborted"
+    reached_at = _reached_goal_at(t, flown, flown_vel, goal, mission, params)
+    result = mission.result or "aborted"
     if result == "reached_goal" and reached_at is None:
         result = "timeout"  # the mission thought so from its estimate, but the truth never got there
-    stats = loop.link.radio.stats.snapshot()
-    ages = np.array(loop.link.radio.stats.age_s) * 1e3
-    rtts = np.array(loop.health.rtt_s) * 1e3
-    status = loop.health.last_status
+    travels = mission.arrival_s > 0.0  # the reference leaves the goal at some point (not a hover)
+    starts_at_goal = bool(np.linalg.norm(mission.track.sample(0.0).position_m - goal) <= COURSE_SAME_POINT_M)
+    flight_over = _flight_over_s(t, phase)
+    # a crash is a collision in flight unless it is the landing's, after the mission's result was decided
+    crashed = rec.crash is not None or mission.crash_seen is not None
+    crashed_in_flight = crashed and mission.landing.result != "crashed"
     summary = {
         "result": result,
         "reached_goal": result == "reached_goal",
-        "collided": crashed,
-        "min_clearance_m": min_clearance,
-        "flight_time_s": None if reached_at is None or track_start is None else reached_at - track_start,
-        "rms_tracking_error_m": _rms(err_tracking),
+        "collided": crashed_in_flight,
+        "time_to_goal_s": (reached_at - mission.track_start_s if reached_at is not None and travels else None),
+        "mission": {"result": result, "reached_goal": result == "reached_goal",
+                    "collision_in_flight": crashed_in_flight, "failsafe_reason": mission.failsafe_reason},
+        "landing": dataclasses.asdict(mission.landing),
+        "failure": failure(mission, rec.crash, t, phase, est),
+        **min_clearance(opts.world, t, phase, truth),
+        "course_grade": course_grade(load_course_rules(), opts.world, t, truth, truth_vel, truth_att, goal,
+                                     mission.track.sample(mission.track.duration_s).yaw_rad, mission.track_start_s,
+                                     starts_at_goal, flight_over),
+        "rms_tracking_error_m": rms(err_tracking),
         "max_tracking_error_m": float(err_tracking.max()) if err_tracking.size else None,
-        "final_position_error_m": final_error,
-        "path_length_m": path_length,  # flown (truth, else estimate) while tracking and hovering at the end
-        "estimator": {"rms_position_error_m": _rms(est_pos_err), "rms_velocity_error_mps": _rms(est_vel_err)}
-        | _estimator_counts(loop.estimator),
-        "link": {
-            "uplink_sent": stats.tx_frames,
-            "uplink_delivered": None if status is None else loop.health.uplink_received,
-            "downlink_sent": stats.rx_frames + stats.rx_lost,
-            "downlink_delivered": stats.rx_frames,
-            "rtt_ms_p50": float(np.percentile(rtts, 50)) if rtts.size else None,
-            "rtt_ms_p99": float(np.percentile(rtts, 99)) if rtts.size else None,
-            # one-way age of downlink frames (receive time - sample time, clocks related by TIMESYNC or
-            # shared in lockstep), over the recent window the link statistics keep
-            "age_ms_p50": float(np.percentile(ages, 50)) if ages.size else None,
-            "age_ms_p99": float(np.percentile(ages, 99)) if ages.size else None,
-            "downlink_lost": stats.rx_lost,
-            "uplink_lost": None if status is None else stats.tx_frames - loop.health.uplink_received,
-        },
+        "final_position_error_m": _final_error(phase, flown, goal),
+        "path_length_m": _path_length(flown[tracking & np.isfinite(flown).all(axis=1)]),
+        "estimator": _estimator_errors(rec, phase, est, est_vel) | _estimator_counts(loop.estimator),
+        "link": _link_summary(loop),
         "mode": opts.mode,
         "latency_compensation": opts.latency_compensation,
         "clock": opts.clock,
-        "failsafe_reason": loop.mission.failsafe_reason,
+        "failsafe_reason": mission.failsafe_reason,
         "sim_time_s": float(t[-1]) if t.size else 0.0,
         "wall_time_s": wall_s,
         "log_dir": str(log_dir),
     }
-    timing = loop.clock.timer.summary()
-    # Simulated seconds per wall second while flying (first tick to last); wall_time_s above also holds
-    # the start: opening the link and, with `fly`, waiting for the emulator child to boot.
-    loop_s = timing["loop_wall_s"]
-    timing["real_time_factor"] = summary["sim_time_s"] / loop_s if loop_s else None
-    summary["timing"] = timing
-    if opts.clock == "realtime":
-        summary["timing"]["achieved_rate_hz"] = loop.clock.achieved_rate_hz()
+    summary["flight_time_s"] = summary["time_to_goal_s"]  # the name earlier summaries (and sweeps) used
+    summary["timing"] = _timing(loop, opts, summary["sim_time_s"])
     summary.update(opts.extra_summary)
     return summary
+
+
+def _reached_goal_at(t, flown, flown_vel, goal, mission, params) -> float | None:
+    """The first time after the track's arrival time at which the flown position is within the goal
+    tolerances (truth when the link has it, else the estimate)."""
+    if mission.track_start_s is None:
+        return None
+    after = (t >= mission.track_start_s + mission.arrival_s) & np.isfinite(flown).all(axis=1)
+    near = np.linalg.norm(flown - goal, axis=1) <= params.goal_position_tolerance_m
+    slow = np.linalg.norm(flown_vel, axis=1) <= params.goal_speed_tolerance_mps
+    hits = np.flatnonzero(after & near & slow)
+    return float(t[hits[0]]) if hits.size else None
+
+
+def _flight_over_s(t: np.ndarray, phase: np.ndarray) -> float:
+    """When the flight proper ended: the first tick of landing (or of the end), else the last tick."""
+    over = np.flatnonzero(np.isin(phase, ("land", "vehicle_land", "disarm", "done", "failsafe_descent")))
+    return float(t[over[0]]) if over.size else (float(t[-1]) if t.size else 0.0)
+
+
+def _final_error(phase: np.ndarray, flown: np.ndarray, goal: np.ndarray) -> float | None:
+    hover_rows = np.flatnonzero(phase == "hover")
+    return float(np.linalg.norm(flown[hover_rows[-1]] - goal)) if hover_rows.size else None
+
+
+def _path_length(points: np.ndarray) -> float | None:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum()) if len(points) > 1 else None
+
+
+def _estimator_errors(rec, phase, est, est_vel) -> dict:
+    airborne = np.isin(phase, ("takeoff", "settle", "track", "hover", "land", "failsafe_hold", "failsafe_descent"))
+    truth_at_est, truth_vel_at_est = stack3(rec.truth_at_est), stack3(rec.truth_vel_at_est)
+    valid = airborne & np.isfinite(truth_at_est).all(axis=1) & np.isfinite(est).all(axis=1)
+    return {"rms_position_error_m": rms(np.linalg.norm(est[valid] - truth_at_est[valid], axis=1)),
+            "rms_velocity_error_mps": rms(np.linalg.norm(est_vel[valid] - truth_vel_at_est[valid], axis=1))}
+
+
+def _link_summary(loop: FlightLoop) -> dict:
+    """This session's link figures; the vehicle's counters are per session (it restarts them when a ground
+    station is heard after a silence), so None stands for "the vehicle never reported"."""
+    stats = loop.link.radio.stats.snapshot()
+    ages = np.array(loop.link.radio.stats.age_s) * 1e3
+    rtts = np.array(loop.health.rtt_s) * 1e3
+    reported = loop.health.last_status is not None
+    return {
+        "uplink_sent": stats.tx_frames,
+        "uplink_delivered": loop.health.uplink_received if reported else None,
+        "downlink_sent": stats.rx_frames + stats.rx_lost,
+        "downlink_delivered": stats.rx_frames,
+        "rtt_ms_p50": float(np.percentile(rtts, 50)) if rtts.size else None,
+        "rtt_ms_p99": float(np.percentile(rtts, 99)) if rtts.size else None,
+        # one-way age of downlink frames (receive time - sample time, clocks related by TIMESYNC or
+        # shared in lockstep), over the recent window the link statistics keep
+        "age_ms_p50": float(np.percentile(ages, 50)) if ages.size else None,
+        "age_ms_p99": float(np.percentile(ages, 99)) if ages.size else None,
+        "downlink_lost": stats.rx_lost,
+        "uplink_lost": stats.tx_frames - loop.health.uplink_received if reported else None,
+    }
+
+
+def _timing(loop: FlightLoop, opts: SessionOptions, sim_time_s: float) -> dict:
+    timing = loop.clock.timer.summary()
+    # Simulated seconds per wall second while flying (first tick to last); wall_time_s also holds the
+    # start: opening the link and, with `fly`, waiting for the emulator child to boot.
+    loop_s = timing["loop_wall_s"]
+    timing["real_time_factor"] = sim_time_s / loop_s if loop_s else None
+    if opts.clock == "realtime":
+        timing["achieved_rate_hz"] = loop.clock.achieved_rate_hz()
+    return timing
 
 
 def _estimator_counts(estimator) -> dict:
@@ -215,32 +253,74 @@ def _estimator_counts(estimator) -> dict:
             "reinitialisations": h.reinitialisations, "imu_lost": h.lost_imu, "imu_reordered": h.reordered_imu}
 
 
-def _rms(values: np.ndarray) -> float | None:
-    values = np.asarray(values, float)
-    return float(math.sqrt(np.mean(values**2))) if values.size else None
-
-
 def human_summary(summary: dict) -> str:
-    def fmt(v, unit="", scale=1.0, digits=3):
-        return "n/a" if v is None else f"{v * scale:.{digits}f}{unit}"
-
-    link = summary["link"]
-    lines = [
-        f"result: {summary['result']}" + (f" ({summary['failsafe_reason']})" if summary.get("failsafe_reason") else ""),
-        f"flight time {fmt(summary['flight_time_s'], ' s', digits=2)}, tracking error rms "
-        f"{fmt(summary['rms_tracking_error_m'], ' mm', 1e3, 1)} "
-        f"max {fmt(summary['max_tracking_error_m'], ' mm', 1e3, 1)}, "
-        f"final error {fmt(summary['final_position_error_m'], ' mm', 1e3, 1)}, "
-        f"min clearance {fmt(summary['min_clearance_m'], ' m')}",
-        f"estimator rms error {fmt(summary['estimator']['rms_position_error_m'], ' mm', 1e3, 2)}, "
-        f"{fmt(summary['estimator']['rms_velocity_error_mps'], ' cm/s', 1e2, 2)}",
-        f"link: uplink {link['uplink_delivered']}/{link['uplink_sent']} delivered, downlink "
-        f"{link['downlink_delivered']}/{link['downlink_sent']}, rtt p50 {fmt(link['rtt_ms_p50'], ' ms', digits=2)} "
-        f"p99 {fmt(link['rtt_ms_p99'], ' ms', digits=2)}",
-        f"{summary['sim_time_s']:.2f} s simulated in {summary['wall_time_s']:.2f} s wall"
-        f"{_loop_speed(summary.get('timing', {}))}; logs in {summary['log_dir']}",
-    ]
+    """A few lines, each figure only where it means something for this flight."""
+    lines = [_result_line(summary)]
+    flight = [f"time to goal {summary['time_to_goal_s']:.2f} s" if summary.get("time_to_goal_s") is not None
+              else None,
+              _tracking_text(summary),
+              _mm("final error", summary["final_position_error_m"]),
+              f"min clearance {summary['min_clearance_m']:.3f} m ({summary['min_clearance_to']}, "
+              f"{summary['min_clearance_phase']})" if summary.get("min_clearance_m") is not None else None]
+    if any(flight):
+        lines.append(", ".join(part for part in flight if part))
+    landing = summary.get("landing") or {}
+    if landing.get("result") not in (None, "not_attempted") or landing.get("note"):
+        where = (f" at {[round(v, 3) for v in landing['spot_enu_m']]} m ({landing['moved_m']:.2f} m from the goal "
+                 "hover point)" if landing.get("spot_enu_m") is not None else "")
+        lines.append(f"landing: {landing['result']}{where}" + (f"; {landing['note']}" if landing.get("note") else ""))
+    grade = summary.get("course_grade")
+    if grade is not None:
+        course_time = f", flight time {grade['flight_time_s']:.2f} s" if grade["flight_time_s"] is not None else ""
+        lines.append(f"course grade: {'pass' if grade['passed'] else 'FAIL'} (stopped at goal "
+                     f"{_yes(grade['stopped_at_goal'])}, no collision within {grade['robot_radius_m']:g} m "
+                     f"{_yes(grade['no_collision'])}{course_time})")
+    est = summary["estimator"]
+    if est.get("rms_position_error_m") is not None:
+        lines.append(f"estimator rms error {est['rms_position_error_m'] * 1e3:.2f} mm, "
+                     f"{est['rms_velocity_error_mps'] * 1e2:.2f} cm/s")
+    lines.append(_link_line(summary["link"]))
+    lines.append(f"{summary['sim_time_s']:.2f} s simulated in {summary['wall_time_s']:.2f} s wall"
+                 f"{_loop_speed(summary.get('timing', {}))}; logs in {summary['log_dir']}")
     return "\n".join(lines)
+
+
+def _tracking_text(summary: dict) -> str | None:
+    if summary["rms_tracking_error_m"] is None:
+        return None
+    return (f"tracking error rms {summary['rms_tracking_error_m'] * 1e3:.1f} mm "
+            f"max {summary['max_tracking_error_m'] * 1e3:.1f} mm")
+
+
+def _result_line(summary: dict) -> str:
+    line = f"result: {summary['result']}"
+    failure_ = summary.get("failure")
+    if failure_ is not None:
+        line += f" ({failure_['reason']})"
+    elif summary.get("failsafe_reason"):
+        line += f" ({summary['failsafe_reason']})"
+    return line
+
+
+def _link_line(link: dict) -> str:
+    parts = []
+    if link["uplink_delivered"] is not None:
+        parts.append(f"uplink {link['uplink_delivered']}/{link['uplink_sent']} delivered")
+    else:
+        parts.append(f"uplink {link['uplink_sent']} sent (the vehicle never reported what it received)")
+    if link["downlink_sent"]:
+        parts.append(f"downlink {link['downlink_delivered']}/{link['downlink_sent']}")
+    if link["rtt_ms_p50"] is not None:
+        parts.append(f"rtt p50 {link['rtt_ms_p50']:.2f} ms p99 {link['rtt_ms_p99']:.2f} ms")
+    return "link: " + ", ".join(parts)
+
+
+def _mm(label: str, value: float | None) -> str | None:
+    return None if value is None else f"{label} {value * 1e3:.1f} mm"
+
+
+def _yes(flag: bool) -> str:
+    return "yes" if flag else "no"
 
 
 def _loop_speed(timing: dict) -> str:

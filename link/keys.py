@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 DEFAULT_PREFIX = "cfstack"
 GROUND_STATION_SYSTEM_ID = 255
+MAX_VEHICLE_ID = 250  # vehicles are MAVLink system ids 1..250; 251..255 are ground-side ids
 MOCAP_SYSTEM_ID = 254
 
 

@@ -10,6 +10,7 @@ MAVLink's NED/FRD conventions exist only inside link.mavlink.codec.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -79,11 +80,12 @@ class CommandKind(IntEnum):
     ARM = 1
     DISARM = 2
     LAND = 3
+    REBOOT = 4  # restart the flight controller; on the emulator, a crashed vehicle is set back at its start
 
 
 @dataclass(frozen=True)
 class VehicleCommand:
-    """Arm, disarm or land (wire: COMMAND_LONG). `time_s` is the issue time."""
+    """Arm, disarm, land or reboot (wire: COMMAND_LONG). `time_s` is the issue time."""
 
     time_s: float
     kind: CommandKind
@@ -135,6 +137,55 @@ class TruthState:
     rate_flu_radps: Vec3
 
 
+class Touched(IntEnum):
+    """What a crashed vehicle touched (CrashReport.touched)."""
+
+    FLOOR = 1  # the floor, faster than a landing
+    BLOCK = 2  # the side or underside of a block, within the collision radius
+    BLOCK_TOP = 3  # the top of a block below, faster than a landing
+    BOUNDS = 4  # a wall or the ceiling of the world's bounds
+
+
+@dataclass(frozen=True)
+class CrashReport:
+    """Simulation-only: how and where the flight ended (wire: DEBUG_FLOAT_ARRAY "CRASH", on the truth key).
+
+    For logs and grading only, like TruthState: a real vehicle does not report what it hit.
+    """
+
+    time_s: float
+    position_enu_m: Vec3
+    velocity_enu_mps: Vec3  # just before the contact
+    touched: Touched
+    block_index: int = -1  # BLOCK / BLOCK_TOP: the block's index in the world file, else -1
+    block_extents_m: tuple[float, ...] = ()  # that block's [xmin, xmax, ymin, ymax, zmin, zmax]
+    limit: float = 0.0  # FLOOR / BLOCK_TOP: the landing speed limit (m/s); BLOCK: the collision radius (m)
+
+    @property
+    def speed_mps(self) -> float:
+        return math.sqrt(sum(v * v for v in self.velocity_enu_mps))
+
+    @property
+    def reason(self) -> str:
+        return self.describe()
+
+    def describe(self) -> str:
+        """One line: what was touched, where, when, how fast."""
+        x, y, z = self.position_enu_m
+        where = f"at t={self.time_s:.3f} s at ({x:.3f}, {y:.3f}, {z:.3f}) m, {self.speed_mps:.2f} m/s"
+        if self.touched is Touched.BLOCK:
+            what = (f"touched block {self.block_index} {list(self.block_extents_m)} "
+                    f"(within the collision radius {self.limit:.3f} m)")
+        elif self.touched is Touched.BLOCK_TOP:
+            what = (f"hit the top of block {self.block_index} {list(self.block_extents_m)} faster than the "
+                    f"landing limit {self.limit:.2f} m/s")
+        elif self.touched is Touched.FLOOR:
+            what = f"hit the floor faster than the landing limit {self.limit:.2f} m/s"
+        else:
+            what = "left the world bounds"
+        return f"{what} {where}"
+
+
 Message = (
     ThrustMoment
     | AttitudeTarget
@@ -146,6 +197,7 @@ Message = (
     | RadioStatus
     | BatteryStatus
     | TruthState
+    | CrashReport
 )
 
 

@@ -46,6 +46,16 @@ class Vehicle:
     battery_empty_v: float
     battery_capacity_mah: float
     source: str
+    prop_radius_m: float = 0.0
+    collision_radius_override_m: float | None = None  # [rotors] collision_radius_m, when given
+
+    @property
+    def collision_radius_m(self) -> float:
+        """Radius (m) around the centre that must stay clear of blocks and walls: the given one, else the
+        largest rotor distance from the centre plus a propeller radius (0.0685 m for the course Crazyflie)."""
+        if self.collision_radius_override_m is not None:
+            return self.collision_radius_override_m
+        return float(np.max(np.linalg.norm(self.rotor_positions_flu_m, axis=1))) + self.prop_radius_m
 
     @property
     def weight_n(self) -> float:
@@ -123,6 +133,9 @@ def load_vehicle(name_or_path: str | Path = "crazyflie") -> Vehicle:
         battery_empty_v=battery.number("voltage_empty_v", minimum=0.0),
         battery_capacity_mah=battery.number("capacity_mah", minimum=1.0),
         source=str(path),
+        prop_radius_m=rotors.number("prop_radius_m", minimum=0.0),
+        collision_radius_override_m=(rotors.number("collision_radius_m", minimum=0.0)
+                                     if rotors.has("collision_radius_m") else None),
     )
     a = vehicle.allocation
     if np.linalg.matrix_rank(a / np.abs(a).max(axis=1, keepdims=True)) < 4:

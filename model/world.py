@@ -75,6 +75,37 @@ class World:
     def inside_block(self, points: np.ndarray) -> np.ndarray:
         return self.distance_to_blocks(points) <= 0.0
 
+    def obstacle_clearance(self, points: np.ndarray, pads_allowed=False) -> tuple[np.ndarray, np.ndarray]:
+        """(distance m, obstacle) from each point (N, 3) to the nearest obstacle: a block (its index) or a
+        wall or the ceiling of the bounds (-1). The floor is a landing surface, not an obstacle; where
+        pads_allowed is true (a scalar or one flag per point: taking off, landing), a block right below the
+        point (footprint under it, top at or below it: a landing pad) is not one either."""
+        p = np.asarray(points, float).reshape(-1, 3)
+        lo, hi = self.bounds[0::2], self.bounds[1::2]
+        walls = np.column_stack([p[:, 0] - lo[0], hi[0] - p[:, 0], p[:, 1] - lo[1], hi[1] - p[:, 1],
+                                 hi[2] - p[:, 2]]).min(axis=1)
+        distance, index = walls, np.full(len(p), -1)
+        if len(self.blocks):
+            b_lo, b_hi = self.blocks[None, :, 0::2], self.blocks[None, :, 1::2]
+            q = p[:, None, :]
+            gaps = np.sqrt((np.maximum(np.maximum(b_lo - q, q - b_hi), 0.0) ** 2).sum(-1))
+            pad = ((b_lo[..., 0] <= q[..., 0]) & (q[..., 0] <= b_hi[..., 0]) & (b_lo[..., 1] <= q[..., 1])
+                   & (q[..., 1] <= b_hi[..., 1]) & (b_hi[..., 2] <= q[..., 2] + 1e-9))
+            allowed = np.broadcast_to(np.asarray(pads_allowed, bool).reshape(-1, 1), pad.shape)
+            gaps = np.where(pad & allowed, np.inf, gaps)
+            nearest = gaps.argmin(axis=1)
+            block_distance = gaps[np.arange(len(p)), nearest]
+            closer = block_distance < distance
+            distance = np.where(closer, block_distance, distance)
+            index = np.where(closer, nearest, index)
+        return distance, index
+
+    def nudged_inside(self, point, radius_m: float) -> np.ndarray:
+        """The point moved inward so that it is at least radius_m inside every face of the bounds (the floor
+        included); unchanged when it already is."""
+        lo, hi = self.bounds[0::2] + radius_m, self.bounds[1::2] - radius_m
+        return np.minimum(np.maximum(np.asarray(point, float), lo), hi)
+
 
 def load_world(path: str | Path) -> World:
     """Read and validate a world file; raise WorldError("FILE: problem") on any defect."""

@@ -18,10 +18,11 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from link.keys import DEFAULT_PREFIX
+from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
-from link.transports.zenoh_session import add_zenoh_arguments, zenoh_options_from_args
+from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
 from model.errors import OneLineParser, UserError
+from model.options import finite_float, positive_float, seed, whole_number
 
 if TYPE_CHECKING:
     from simulator.emulator_config import EmulatorConfig
@@ -29,44 +30,6 @@ if TYPE_CHECKING:
 # numpy, scipy and the emulator load only after the options are parsed: a mistyped option fails at once.
 
 log = logging.getLogger("cfstack.emulator")
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"{text} must be a positive number")
-    return value
-
-
-def _whole_number(minimum: int, meaning: str):
-    """An argparse type: a whole number >= minimum; `meaning` says what a smaller one would not be."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"{value} {meaning}")
-        return value
-
-    return parse
-
-
-_vehicle_count = _whole_number(1, "is not a vehicle count (1 or more)")
-_seed = _whole_number(0, "is negative (seeds are 0, 1, 2, ...)")
-
-
-def _finite_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"{text} is not a finite number")
-    return value
 
 
 def _outage(text: str) -> tuple[float, float | None]:
@@ -87,20 +50,21 @@ def _outage(text: str) -> tuple[float, float | None]:
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="cfstack emulator", description=__doc__.splitlines()[0])
     p.add_argument("--world", help="world JSON file (default: an empty room)")
-    p.add_argument("--vehicles", type=_vehicle_count, default=1, help="number of vehicles (ids 1..N)")
+    p.add_argument("--vehicles", type=whole_number(1, "a vehicle count", MAX_VEHICLE_ID), default=1,
+                   help="number of vehicles (ids 1..N)")
     p.add_argument("--vehicle-model", default="crazyflie", help="vehicle name (crazyflie, cf2x) or TOML file")
     p.add_argument("--mocap-room", default="vicon", help="mocap room name or TOML file")
     p.add_argument("--radio", default="crazyradio", help="radio profile name (ideal, crazyradio, lab, harsh) or TOML")
-    p.add_argument("--clock", choices=("realtime", "lockstep"), default="lockstep",
-                   help="lockstep (default): simulation time advances only as the ground stations acknowledge "
-                        "its ticks; realtime: paced by the wall clock")
-    p.add_argument("--seed", type=_seed, default=1, help="seed of every random source (>= 0)")
+    p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
+                   help="realtime (default, as `cfstack groundstation`): paced by the wall clock; lockstep: "
+                        "simulation time advances only as the ground stations acknowledge its ticks")
+    p.add_argument("--seed", type=seed, default=1, help="seed of every random source (>= 0)")
     p.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
-    p.add_argument("--physics-rate", type=_positive_float, default=1000.0, help="physics steps per second")
+    p.add_argument("--physics-rate", type=positive_float, default=1000.0, help="physics steps per second")
     p.add_argument("--airborne", action="store_true", help="start hovering at the start point instead of on the floor")
-    p.add_argument("--start", type=_finite_float, nargs=3, metavar=("X", "Y", "Z"),
+    p.add_argument("--start", type=finite_float, nargs=3, metavar=("X", "Y", "Z"),
                    help="start of vehicle 1 (ENU, m); further vehicles 0.5 m apart along +x")
-    p.add_argument("--duration", type=_positive_float, help="stop after this many simulated seconds")
+    p.add_argument("--duration", type=positive_float, help="stop after this many simulated seconds")
     p.add_argument("--no-lookahead", dest="lookahead", action="store_false",
                    help="lockstep: do not run physics ahead while waiting for acks (byte-identical results; "
                         "for comparison)")
@@ -114,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fault injection: from simulated time AT (s) for DURATION s (default: to the end), "
                         "publish no mocap frames (repeatable)")
     p.add_argument("--quiet", action="store_true", help="log warnings only")
-    add_zenoh_arguments(p)
+    add_zenoh_arguments(p, mode_flag="--zenoh-mode")
     add_signing_arguments(p)
     return p
 
@@ -140,7 +104,7 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         vehicle=load_vehicle(args.vehicle_model), mocap_room=load_mocap_room(args.mocap_room),
         radio=load_radio_profile(args.radio), world=world, vehicles=args.vehicles, seed=args.seed,
         clock=args.clock, physics_rate_hz=args.physics_rate, prefix=args.prefix,
-        connection="zenoh", zenoh_options=zenoh_options_from_args(args), start_positions_enu_m=starts,
+        connection="zenoh", zenoh_options=_zenoh_options(args), start_positions_enu_m=starts,
         airborne=args.airborne, signing=signing_from_args(args), duration_s=args.duration,
         lookahead=args.lookahead, keep_ledger=args.radio_ledger is not None,
         radio_cuts=tuple(Outage(at, duration) for at, duration in args.cut_radio),
@@ -148,6 +112,15 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         # the uplink gate keeps a signing state of its own (simulator.emulator.GroundFrameGate)
         signing_factory=lambda: signing_from_args(args),
     )
+
+
+def _zenoh_options(args: argparse.Namespace) -> dict:
+    """The zenoh options given, listening on DEFAULT_ENDPOINT (where `cfstack groundstation` connects by
+    default) when neither --connect nor --listen is."""
+    options = zenoh_options_from_args(args)
+    if not options.get("connect") and not options.get("listen"):
+        options["listen"] = [DEFAULT_ENDPOINT]
+    return options
 
 
 def emulator_command(argv: list[str]) -> int:

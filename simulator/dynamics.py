@@ -23,7 +23,8 @@ its thrust exceeds its weight. Touching the floor no faster than landing_speed_m
 (the vehicle comes to rest, levelled, yaw kept; its tilt at touchdown is not judged); faster is a
 crash. A resting vehicle does not tip over or yaw whatever moments it is given. The vehicle centre
 coming within collision_radius_m of a block, or leaving the world bounds, is a crash. A crash stops the
-vehicle: motors off, state frozen where it happened, reported as a Crash(time_s, position_enu_m, reason).
+vehicle: motors off, state frozen where it happened, reported as a Crash (link.messages.CrashReport: time,
+position, velocity, what was touched).
 Block distances (numpy) are recomputed only once the vehicle has moved as far as its last clearance.
 """
 
@@ -34,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from link.messages import TruthState
+from link.messages import CrashReport, Touched, TruthState
 from model.frames import IDENTITY, Quat, Vec3, level_with_yaw, quat_normalize
 from model.vehicle import GRAVITY_MPS2, Vehicle
 from model.world import World
@@ -44,27 +45,15 @@ _NO_DV: Vec3 = (0.0, 0.0, 0.0)  # no contact impulse since the last IMU sample (
 
 @dataclass(frozen=True)
 class ContactParams:
-    """How the vehicle meets the floor and the blocks (simulator/params/firmware.toml [contact])."""
+    """How the vehicle meets the floor (simulator/params/firmware.toml [contact]); its collision radius
+    for blocks is the vehicle's (model.vehicle.Vehicle.collision_radius_m)."""
 
     landing_speed_max_mps: float  # touching the floor faster than this is a crash
-    prop_radius_m: float
-    collision_radius_m: float | None = None  # None: rotor arm + prop radius
-
-    def radius_for(self, vehicle: Vehicle) -> float:
-        """Block-collision radius (m): the given one, else the largest rotor distance plus a propeller."""
-        if self.collision_radius_m is not None:
-            return self.collision_radius_m
-        arm = float(np.max(np.linalg.norm(vehicle.rotor_positions_flu_m, axis=1)))
-        return arm + self.prop_radius_m
 
 
-@dataclass(frozen=True)
-class Crash:
-    """The end of a flight: when (sim time, s), where (ENU, m) and why."""
-
-    time_s: float
-    position_enu_m: Vec3
-    reason: str
+# The end of a flight: when, where, how fast and what was touched (also sent to the ground as a
+# simulation-only report on the truth key).
+Crash = CrashReport
 
 
 class QuadrotorDynamics:
@@ -93,7 +82,7 @@ class QuadrotorDynamics:
         self._drag_per_radps = (vehicle.rotor_drag_coefficient / vehicle.hover_rotor_speed_radps
                                 if vehicle.rotor_drag_coefficient > 0.0 else 0.0)
         self.landing_speed_max_mps = contact.landing_speed_max_mps
-        self.collision_radius_m = contact.radius_for(vehicle)
+        self.collision_radius_m = vehicle.collision_radius_m
         self.floor_z_m = float(world.bounds[4]) if world is not None else 0.0
         self._bounds = tuple(float(v) for v in world.bounds) if world is not None else None
         self._has_blocks = world is not None and len(world.blocks) > 0
@@ -123,6 +112,11 @@ class QuadrotorDynamics:
         elif world is not None and self._x[2] == world.support_height(self._x[0:3]):
             self._rest_at(self._x[2])  # starting on a landing pad (a block top)
         self._check_world(0.0)
+
+    def continue_clock(self, steps: int) -> None:
+        """Carry on from step `steps` (a rebooted vehicle keeps the simulation clock)."""
+        self._n = steps
+        self.t_s = steps * self.dt_s
 
     # --- state ------------------------------------------------------------------------------------
     @property
@@ -408,11 +402,10 @@ class QuadrotorDynamics:
                 self._rest_on_floor()
             else:
                 x[2] = self.floor_z_m
-                return self._end_flight(t_s, f"hit the floor at {sink_mps:.2f} m/s "
-                                              f"(landing limit {self.landing_speed_max_mps:.2f} m/s)")
+                return self._end_flight(t_s, Touched.FLOOR, limit=self.landing_speed_max_mps)
         b = self._bounds
         if b is not None and not (b[0] <= x[0] <= b[1] and b[2] <= x[1] <= b[3] and x[2] <= b[5]):
-            return self._end_flight(t_s, "left the world bounds")
+            return self._end_flight(t_s, Touched.BOUNDS)
         if self._has_blocks:
             return self._check_blocks(t_s)
         return None
@@ -440,11 +433,10 @@ class QuadrotorDynamics:
             # Only the tops of blocks right below: a landing pad. The vehicle's feet meet its top face
             # like the floor (a gentle touchdown rests on it, a fast one is a crash).
             self._block_check_at = None
-            return self._touch_pad(t_s, float(hi[pads, 2].max()))
+            top = int(np.flatnonzero(pads)[np.argmax(hi[pads, 2])])
+            return self._touch_pad(t_s, top)
         index = int(np.argmin(np.where(touching & ~pads, gaps, np.inf)))
-        return self._end_flight(t_s, f"touched block {index} {self.world.blocks[index].tolist()} "
-                                     f"(centre {distance:.3f} m from it, collision radius "
-                                     f"{self.collision_radius_m:.3f} m)")
+        return self._end_flight(t_s, Touched.BLOCK, index, limit=self.collision_radius_m)
 
     @staticmethod
     def _is_pad_below(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, sunk_m: float) -> np.ndarray:
@@ -452,20 +444,21 @@ class QuadrotorDynamics:
         inside_xy = (lo[:, 0] <= p[0]) & (p[0] <= hi[:, 0]) & (lo[:, 1] <= p[1]) & (p[1] <= hi[:, 1])
         return inside_xy & (hi[:, 2] <= p[2] + sunk_m + 1e-9)
 
-    def _touch_pad(self, t_s: float, top_z: float) -> Crash | None:
+    def _touch_pad(self, t_s: float, pad: int) -> Crash | None:
         x = self._x
+        top_z = float(self.world.blocks[pad, 5])
         if x[2] > top_z:
             return None  # above the pad, within the collision radius of its top face: still flying
         sink_mps = -x[5]
         if sink_mps > self.landing_speed_max_mps:
             x[2] = top_z
-            return self._end_flight(t_s, f"hit a block top at {sink_mps:.2f} m/s "
-                                          f"(landing limit {self.landing_speed_max_mps:.2f} m/s)")
+            return self._end_flight(t_s, Touched.BLOCK_TOP, pad, limit=self.landing_speed_max_mps)
         self._rest_at(top_z)
         return None
 
-    def _end_flight(self, t_s: float, reason: str) -> Crash:
-        self.crash = Crash(time_s=t_s, position_enu_m=self.position_enu_m, reason=reason)
+    def _end_flight(self, t_s: float, touched: Touched, block: int = -1, limit: float = 0.0) -> Crash:
+        extents = tuple(self.world.blocks[block].tolist()) if block >= 0 else ()
+        self.crash = Crash(t_s, self.position_enu_m, self.velocity_enu_mps, touched, block, extents, limit)
         self.stop_motors()
         self._x[3:6] = [0.0, 0.0, 0.0]
         self._x[10:13] = [0.0, 0.0, 0.0]

@@ -11,13 +11,14 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from link.keys import MAX_VEHICLE_ID
 from model.errors import UserError
 from model.radio import RadioProfile
 from model.vehicle import MocapRoom, Vehicle
 from model.world import World
 from simulator.faults import Outage
 
-MAX_VEHICLES = 250  # MAVLink system ids 1..250 (251..255 are ground-side ids, link.keys)
+MAX_VEHICLES = MAX_VEHICLE_ID  # one MAVLink system id each
 
 
 @dataclass

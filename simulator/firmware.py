@@ -67,6 +67,7 @@ class FirmwareParams:
     commander_rate_hz: float
     watchdog_level_timeout_s: float
     watchdog_shutdown_timeout_s: float
+    session_gap_s: float
     quaternion_norm_tolerance: float
     max_rate_radps: float
     limit_relative_tolerance: float
@@ -105,11 +106,11 @@ def load_firmware_params(name_or_path: str | Path = "firmware") -> FirmwareParam
     for name, gains in (("k_r_per_s2", k_r), ("k_w_per_s", k_w)):
         if min(gains) <= 0.0:
             raise attitude.error(name, "gains must be positive")
-    radius = contact.number("collision_radius_m", minimum=0.0) if contact.has("collision_radius_m") else None
     return FirmwareParams(
         commander_rate_hz=commander.number("rate_hz", minimum=1.0),
         watchdog_level_timeout_s=level,
         watchdog_shutdown_timeout_s=shutdown,
+        session_gap_s=commander.number("session_gap_s", minimum=0.0),
         quaternion_norm_tolerance=commander.number("quaternion_norm_tolerance", minimum=0.0, maximum=0.5),
         max_rate_radps=commander.number("max_rate_radps", minimum=0.0),
         limit_relative_tolerance=commander.number("limit_relative_tolerance", minimum=0.0, maximum=0.1),
@@ -127,8 +128,6 @@ def load_firmware_params(name_or_path: str | Path = "firmware") -> FirmwareParam
         avionics_power_w=battery.number("avionics_power_w", minimum=0.0),
         contact=ContactParams(
             landing_speed_max_mps=contact.number("landing_speed_max_mps", minimum=0.0),
-            prop_radius_m=contact.number("prop_radius_m", minimum=0.0),
-            collision_radius_m=radius,
         ),
         source=p.source,
     )
@@ -176,8 +175,10 @@ class Firmware:
         self.tick_period_s = 1.0 / params.commander_rate_hz
         self.armed = False
         self.mode = VehicleMode.IDLE
-        self.rejected_commands = 0
-        self.uplink_received = 0  # every uplink message delivered to the vehicle, reported in SYS_STATUS
+        self.rejected_commands = 0  # this ground-station session's (see receive)
+        self.uplink_received = 0  # uplink messages delivered in this session, reported in SYS_STATUS
+        self.reboot_requested = False  # a REBOOT command came: the vehicle restarts (SimVehicle.reboot)
+        self._last_uplink_s = -math.inf
         self.ignored_setpoints = 0  # valid setpoints that arrived disarmed or while landing
         self.last_ground_station_heartbeat_s: float | None = None
         self._shutdown_latched = False
@@ -203,7 +204,7 @@ class Firmware:
     # --- uplink -----------------------------------------------------------------------------------
     def receive(self, message, arrival_s: float) -> bool:
         """Take one uplink message that arrived at sim time arrival_s; False if it was rejected."""
-        self.uplink_received += 1
+        self.count_uplink(arrival_s)
         if isinstance(message, ThrustMoment):
             return self._take_setpoint(message, arrival_s, self._valid_thrust_moment(message))
         if isinstance(message, AttitudeTarget):
@@ -213,6 +214,16 @@ class Firmware:
         if isinstance(message, Heartbeat) and message.is_ground_station:
             self.last_ground_station_heartbeat_s = arrival_s
         return True
+
+    def count_uplink(self, arrival_s: float) -> None:
+        """Count one uplink message. A ground station heard after more than session_gap_s of silence
+        starts a new session: the counters it reads back (uplink received, rejected) start again from
+        zero, so a second ground station on the same emulator sees its own numbers, not every session's."""
+        if arrival_s - self._last_uplink_s > self.params.session_gap_s:
+            self.uplink_received = 0
+            self.rejected_commands = 0
+        self._last_uplink_s = arrival_s
+        self.uplink_received += 1
 
     def _valid_thrust_moment(self, sp: ThrustMoment) -> bool:
         # |M| within the (finite) limits also rejects NaN and inf
@@ -269,6 +280,8 @@ class Firmware:
                 self.arm(arrival_s)
         elif cmd.kind == CommandKind.DISARM:
             self.disarm()
+        elif cmd.kind == CommandKind.REBOOT:
+            self.reboot_requested = True
         elif cmd.kind == CommandKind.LAND and self.armed and self.mode != VehicleMode.LANDING:
             self.mode = VehicleMode.LANDING
             self._landing_since_s = arrival_s

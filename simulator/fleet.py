@@ -115,6 +115,7 @@ class VehicleNode:
         self.mocap_cut = 0  # mocap frames not published during a mocap cut
         self.next_radio_status_s = RADIO_STATUS_PERIOD_S
         self.crash_reported = False
+        self.reboots_seen = 0
         self.timing_s: dict[str, float] = defaultdict(float)
         self.link: Transport | None = None  # tx downlink, rx uplink
         self.clock: Transport | None = None  # tx clock, rx clock_ack
@@ -230,8 +231,11 @@ class VehicleNode:
         outbox = self.outbox.queue
         for frame in self.downlink_radio.pop_due(t):
             outbox.append((step_no, DOWNLINK, frame))
-        if self.sim.crash is not None and not self.crash_reported:
-            self._report_crash()
+        sim = self.sim
+        if sim.reboots != self.reboots_seen:
+            self._report_reboot(t)
+        if sim.crash is not None and not self.crash_reported:
+            self._report_crash(step_no)
 
     def _deliver_uplink(self, frames: list[bytes], t: float) -> None:
         feed, handle = self.parser.feed, self.sim.handle_uplink
@@ -244,11 +248,22 @@ class VehicleNode:
         status = RadioStatus(**self.downlink_radio.radio_status(reverse=self.uplink_radio))
         self._offer_downlink(self.codec.encode(status), t)
 
-    def _report_crash(self) -> None:
+    def _report_crash(self, step_no: int) -> None:
+        """Once per crash: a log line saying what happened and how to go on, and the simulation-only
+        CrashReport on the truth key (for the ground station's logs and grading)."""
         self.crash_reported = True
-        c = self.sim.crash
-        pos = ", ".join(f"{v:.3f}" for v in c.position_enu_m)
-        log.warning("vehicle %d crashed at t=%.3f s at (%s) m: %s", self.vehicle_id, c.time_s, pos, c.reason)
+        crash = self.sim.crash
+        self.outbox.queue.append((step_no, TRUTH, self.ground_codec.encode(crash)))
+        log.warning("vehicle %d crashed: %s. It stays crashed until a ground station asks for a reset "
+                    "(`cfstack groundstation --reset`, MAVLink MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN) or the "
+                    "emulator restarts", self.vehicle_id, crash.describe())
+
+    def _report_reboot(self, t: float) -> None:
+        self.reboots_seen = self.sim.reboots
+        self.crash_reported = False
+        x, y, z = self.sim.dynamics.position_enu_m
+        log.warning("vehicle %d reset by a ground station's REBOOT at t=%.3f s: disarmed, at rest at "
+                    "(%.3f, %.3f, %.3f) m", self.vehicle_id, t, x, y, z)
 
 
     def _profile(self) -> None:

@@ -88,9 +88,10 @@ class SimVehicle:
         self.vehicle_id = vehicle_id
         self.params = params
         self.world = world
-        start = _checked_start(initial_position_enu_m, world, params.contact.radius_for(vehicle))
-        self.dynamics = QuadrotorDynamics(vehicle, params.contact, world=world, dt_s=1.0 / physics_rate_hz,
-                                          position_enu_m=start)
+        self.start_enu_m = _checked_start(initial_position_enu_m, world, vehicle.collision_radius_m)
+        self._dt_s = 1.0 / physics_rate_hz
+        self.dynamics = self._new_dynamics(self.start_enu_m)
+        self.reboots = 0  # REBOOT commands carried out
         self.firmware = Firmware(vehicle, params)
         imu_rng, mocap_rng = rng.spawn(2)
         self.imu = ImuModel(vehicle.imu, imu_rng)
@@ -163,8 +164,32 @@ class SimVehicle:
                 if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
                     self._deliver_due(t)
                 self._tick_firmware(t)
+                if self.firmware.reboot_requested:
+                    self.reboot()
+                    d = self.dynamics
             self._sample_due(t)
         d.step()
+
+    def reboot(self) -> None:
+        """The flight controller restarts (a REBOOT command): the vehicle is set back where it started,
+        at rest on the surface below its start point (a crashed vehicle picked up and put back), disarmed,
+        on the same clock; the sensors keep their random streams, so a run stays a function of its seed."""
+        old = self.dynamics
+        self.dynamics = self._new_dynamics(self._ground_start())
+        self.dynamics.continue_clock(old.steps)
+        self.firmware = Firmware(self.vehicle, self.params)
+        self.reboots += 1
+        if self.timing_s:  # profiled: time the new body's physics too
+            time_parts(self.dynamics, {"step": "physics"}, self.timing_s)
+
+    def _ground_start(self) -> tuple[float, float, float]:
+        x, y, z = self.start_enu_m
+        floor = float(self.world.bounds[4]) if self.world is not None else 0.0
+        return (x, y, self.world.support_height((x, y, z)) if self.world is not None else floor)
+
+    def _new_dynamics(self, position: tuple[float, float, float]) -> QuadrotorDynamics:
+        return QuadrotorDynamics(self.vehicle, self.params.contact, world=self.world, dt_s=self._dt_s,
+                                 position_enu_m=position)
 
     def run(self, duration_s: float) -> None:
         """Step until the clock has advanced by duration_s (rounded to whole steps)."""
@@ -212,7 +237,7 @@ class SimVehicle:
 
     def _deliver(self, message: Message, cycle_s: float) -> None:
         if isinstance(message, TimeSync):
-            self.firmware.uplink_received += 1  # every uplink message counts, TIMESYNC too
+            self.firmware.count_uplink(cycle_s)  # every uplink message counts, TIMESYNC too
             if message.remote_ns == 0:  # a request; tc1 = 0 would read as another request, so >= 1 ns
                 clock_ns = max(1, round(cycle_s * NS_PER_S))
                 reply = TimeSync(remote_ns=clock_ns, origin_ns=message.origin_ns)

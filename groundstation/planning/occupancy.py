@@ -12,8 +12,10 @@ Geometry (as the course's OccupancyMap, but exact and vectorised):
   ceil(extent / r) voxels per axis, so the last voxel may stick out of the upper bound.
 - A voxel is occupied when the distance between its box and any block's box is <= margin:
   d = |max(0, lo_b - hi_v, lo_v - hi_b)| (per-axis gaps, Euclidean norm). No sampling.
-- The bounds act as walls only through the index range (as in the course, no margin at the bounds),
-  but a voxel whose centre lies outside the bounds is occupied, so every path point stays inside.
+- The bounds are walls with the same margin: a voxel whose centre lies closer than the margin to a face
+  of the bounds (or outside them) is occupied, so every path point stays inside the bounds minus the
+  margin. (The course's OccupancyMap keeps no margin at the bounds, so at a coarse resolution a course
+  path can touch them: a vehicle there is half outside the room.)
 Because a free voxel's whole box is farther than the margin from every block, and the segment between
 two 26-neighbour voxel centres stays inside the union of their two boxes, a path through free voxel
 centres keeps clearance > margin everywhere along it, not only at its points.
@@ -55,10 +57,11 @@ class OccupancyGrid:
         occupied = np.zeros(tuple(shape), bool)
         for block in world.blocks:
             _mark_block(occupied, axes_lo, res, block, float(margin_m))
-        for a in range(3):  # voxels whose centre is beyond the upper bound
-            outside = axes_lo[a] + res[a] / 2 > hi[a]
+        for a in range(3):  # voxels whose centre is within the margin of a face of the bounds, or beyond it
+            centres = axes_lo[a] + res[a] / 2
+            near_wall = (centres < lo[a] + margin_m) | (centres > hi[a] - margin_m)
             index = [slice(None)] * 3
-            index[a] = outside
+            index[a] = near_wall
             occupied[tuple(index)] = True
         return OccupancyGrid(
             world=world, resolution_m=res, margin_m=float(margin_m), origin_m=lo.copy(), occupied=occupied

@@ -17,6 +17,8 @@ the coefficients, once.
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -108,6 +110,21 @@ class Line:
         return flat_output([sx + d0 * dx, sy + d0 * dy, sz + d0 * dz, d1 * dx, d1 * dy, d1 * dz,
                             d2 * dx, d2 * dy, d2 * dz, d3 * dx, d3 * dy, d3 * dz, d4 * dx, d4 * dy, d4 * dz],
                            self.yaw_rad)
+
+
+class Chain:
+    """Trajectories flown one after another (rest-to-rest segments such as Line join smoothly)."""
+
+    def __init__(self, *segments):
+        if not segments:
+            raise ValueError("a chain needs at least one segment")
+        self.segments = segments
+        self._starts = list(itertools.accumulate((s.duration_s for s in segments[:-1]), initial=0.0))
+        self.duration_s = self._starts[-1] + segments[-1].duration_s
+
+    def sample(self, t_s: float) -> FlatOutput:
+        i = max(0, bisect.bisect_right(self._starts, t_s) - 1)
+        return self.segments[i].sample(t_s - self._starts[i])
 
 
 class Circle:

@@ -29,7 +29,8 @@ Mapping (message -> MAVLink message: fields):
                       ACTIVE when armed, else STANDBY. (Bit 8 keeps failsafe when the status says
                       FLIGHT_TERMINATION; a CRITICAL or EMERGENCY status also decodes as failsafe.)
     VehicleCommand -> COMMAND_LONG: ARM/DISARM = MAV_CMD_COMPONENT_ARM_DISARM param1 1/0;
-                      LAND = MAV_CMD_NAV_LAND with param4..7 NaN (current yaw and position).
+                      LAND = MAV_CMD_NAV_LAND with param4..7 NaN (current yaw and position);
+                      REBOOT = MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN param1 1 (reboot the autopilot).
                       The issue time rides in param3 (unused by both commands) as float32 seconds:
                       resolution 2^-24 relative (< 1 ms for the first 4.5 h).
     TimeSync       -> TIMESYNC: tc1 = remote_ns, ts1 = origin_ns.
@@ -38,6 +39,9 @@ Mapping (message -> MAVLink message: fields):
                       %, load in 0.1 %, errors_count1 = rejected_commands, current -1 ("not sent").
     TruthState     -> ODOMETRY: frame_id = child_frame_id = LOCAL_NED (so the velocity is world NED),
                       rates FRD, covariances NaN ("unknown"), quality 100. float32 fields.
+    CrashReport    -> DEBUG_FLOAT_ARRAY, name "CRASH", array_id = Touched, data (a simulation-only array
+                      of our own, on the truth key; ENU as the world file): position ENU (3), velocity
+                      ENU (3), block index, block extents (6, NaN when none), limit; float32.
 
 Decoding: the parser finds frames itself (bytes.find of the 0xFD magic) and checks the CRC with
 pymavlink's own CRC-16/MCRF4XX (fastcrc); payloads are packed and unpacked with the struct layouts and
@@ -77,6 +81,7 @@ from link.messages import (
     AttitudeTarget,
     BatteryStatus,
     CommandKind,
+    CrashReport,
     Heartbeat,
     ImuSample,
     Message,
@@ -84,6 +89,7 @@ from link.messages import (
     RadioStatus,
     ThrustMoment,
     TimeSync,
+    Touched,
     TruthState,
     VehicleCommand,
     VehicleMode,
@@ -213,6 +219,7 @@ W_TIMESYNC = _Wire.of(mav.MAVLink_timesync_message)
 W_RADIO = _Wire.of(mav.MAVLink_radio_status_message)
 W_SYS_STATUS = _Wire.of(mav.MAVLink_sys_status_message)
 W_ODOMETRY = _Wire.of(mav.MAVLink_odometry_message)
+W_DEBUG_ARRAY = _Wire.of(mav.MAVLink_debug_float_array_message)
 
 # CRC_EXTRA of every message of the common dialect: frames of messages we do not decode can still be
 # verified (and skipped whole) instead of being mistaken for garbage.
@@ -258,6 +265,7 @@ _PACK_TIMESYNC = W_TIMESYNC.unpacker.pack
 _PACK_RADIO = W_RADIO.unpacker.pack
 _PACK_SYS_STATUS = W_SYS_STATUS.unpacker.pack
 _PACK_ODOMETRY = W_ODOMETRY.unpacker.pack
+_PACK_DEBUG_ARRAY = W_DEBUG_ARRAY.unpacker.pack
 
 
 def _enc_thrust_moment(m: ThrustMoment, limits: ActuatorLimits, target: int) -> bytes:
@@ -311,6 +319,10 @@ def _enc_command(m: VehicleCommand, limits, target: int) -> bytes:
         # param4 yaw NaN (keep current), param5..7 NaN (land where you are)
         params = (0.0, 0.0, issue_s, _NAN, _NAN, _NAN, _NAN)
         command = mav.MAV_CMD_NAV_LAND
+    elif kind is CommandKind.REBOOT:
+        # param1 1 = reboot the autopilot, param2 0 = leave the onboard computer alone, param3 = issue time
+        params = (1.0, 0.0, issue_s, 0.0, 0.0, 0.0, 0.0)
+        command = mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN
     else:
         params = (1.0 if kind is CommandKind.ARM else 0.0, 0.0, issue_s, 0.0, 0.0, 0.0, 0.0)
         command = mav.MAV_CMD_COMPONENT_ARM_DISARM
@@ -354,6 +366,18 @@ def _enc_truth(m: TruthState, limits, target: int) -> bytes:
     ) + _ODOMETRY_TRUTH_TAIL
 
 
+CRASH_ARRAY_NAME = b"CRASH"
+_DEBUG_ARRAY_LEN = 58  # DEBUG_FLOAT_ARRAY data[58]
+_CRASH_VALUES = 14  # position (3), velocity (3), block index, extents (6), limit
+
+
+def _enc_crash(m: CrashReport, limits, target: int) -> bytes:
+    extents = tuple(m.block_extents_m) if m.block_extents_m else (_NAN,) * 6
+    values = (*m.position_enu_m, *m.velocity_enu_mps, float(m.block_index), *extents, m.limit)
+    return _PACK_DEBUG_ARRAY(_usec(m.time_s), int(m.touched), CRASH_ARRAY_NAME,
+                             *values, *(0.0,) * (_DEBUG_ARRAY_LEN - _CRASH_VALUES))
+
+
 _ENCODER_WIRES: dict[type, tuple[_Wire, Callable]] = {
     ThrustMoment: (W_ACTUATOR, _enc_thrust_moment),
     AttitudeTarget: (W_ATTITUDE, _enc_attitude_target),
@@ -365,6 +389,7 @@ _ENCODER_WIRES: dict[type, tuple[_Wire, Callable]] = {
     RadioStatus: (W_RADIO, _enc_radio),
     BatteryStatus: (W_SYS_STATUS, _enc_battery),
     TruthState: (W_ODOMETRY, _enc_truth),
+    CrashReport: (W_DEBUG_ARRAY, _enc_crash),
 }
 # Per message type, flat: (encoder, msgid, crc_extra, wire name), one tuple unpacked per frame.
 _ENCODERS: dict[type, tuple[Callable, int, bytes, str]] = {
@@ -435,9 +460,24 @@ def _dec_command(v, system_id: int):
         kind = CommandKind.LAND
     elif command == mav.MAV_CMD_COMPONENT_ARM_DISARM and v[0] in (0.0, 1.0):
         kind = CommandKind.ARM if v[0] == 1.0 else CommandKind.DISARM
+    elif command == mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN and v[0] == 1.0:
+        kind = CommandKind.REBOOT
     else:
         return None
     return VehicleCommand(v[2], kind), v[8]
+
+
+_TOUCHED = frozenset(int(t) for t in Touched)
+
+
+def _dec_crash(v, system_id: int):
+    time_usec, touched, name = v[0], v[1], v[2]
+    if name.rstrip(b"\0") != CRASH_ARRAY_NAME or touched not in _TOUCHED:
+        return None  # another debug array: not ours to read
+    data = v[3:]
+    extents = tuple(data[7:13]) if not math.isnan(data[7]) else ()
+    return CrashReport(time_usec / 1e6, tuple(data[0:3]), tuple(data[3:6]), Touched(touched), int(data[6]),
+                       extents, data[13]), 0
 
 
 def _dec_timesync(v, system_id: int):
@@ -752,6 +792,7 @@ def _parser_table(limits: ActuatorLimits | None) -> dict[int, tuple]:
         W_RADIO: _dec_radio,
         W_SYS_STATUS: _dec_battery,
         W_ODOMETRY: _dec_truth,
+        W_DEBUG_ARRAY: _dec_crash,
         W_MOCAP: _dec_mocap,
     }
     if limits is not None:

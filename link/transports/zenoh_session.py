@@ -39,6 +39,9 @@ SESSION_OPTIONS = ("mode", "connect", "listen", "scouting", "config_file")
 # A zenoh endpoint is PROTOCOL/ADDRESS[?metadata][#config], e.g. tcp/127.0.0.1:7447, udp/[::1]:7447.
 ENDPOINT_PATTERN = re.compile(r"^[a-z][a-z0-9-]*/\S+$")
 ENDPOINT_EXAMPLE = "tcp/127.0.0.1:7447"
+# Where `cfstack emulator` listens and `cfstack groundstation` connects when given neither --connect nor
+# --listen, so the two commands meet on one machine as written (zenoh's own default port, 7447).
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
 def check_endpoint(endpoint: str) -> str:

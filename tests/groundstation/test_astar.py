@@ -89,8 +89,10 @@ def test_path_length_is_optimal_on_the_grid(seed):
 
 
 def wall_world() -> World:
+    """A floor-to-ceiling wall from y = 0 to 1.4 m; the gap to the far wall (y = 2.5) is passable with a 0.3 m
+    margin at both the wall and the bounds (the planner keeps the margin from the bounds too)."""
     return World(
-        bounds=np.array([0.0, 3.0, 0.0, 2.0, 0.0, 1.0]), blocks=np.array([[1.0, 1.1, 0.0, 1.4, 0.0, 1.0]])
+        bounds=np.array([0.0, 3.0, 0.0, 2.5, 0.0, 1.5]), blocks=np.array([[1.0, 1.1, 0.0, 1.4, 0.0, 1.5]])
     )
 
 

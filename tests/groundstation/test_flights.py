@@ -83,7 +83,7 @@ def test_groundstation_flies_a_separately_started_emulator_in_attitude_mode(tmp_
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     prefix = f"t{uuid.uuid4().hex[:8]}"
     emulator = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--id", prefix,
-                                 "--quiet"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                 "--clock", "lockstep", "--quiet"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True)
     try:
         run = cfstack("groundstation", "--connect", endpoint, "--id", prefix, "--clock", "lockstep",

@@ -39,7 +39,8 @@ def fly_against_emulator(tmp_path: Path, radio: Path, *gs_args: str) -> tuple[di
     endpoint, prefix = f"tcp/127.0.0.1:{free_port()}", f"a{uuid.uuid4().hex[:8]}"
     ledger, log = tmp_path / "radio.json", tmp_path / "log"
     emulator = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--id", prefix,
-                                 "--radio", str(radio), "--seed", "3", "--radio-ledger", str(ledger), "--quiet"],
+                                 "--clock", "lockstep", "--radio", str(radio), "--seed", "3",
+                                 "--radio-ledger", str(ledger), "--quiet"],
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                 text=True)
     try:

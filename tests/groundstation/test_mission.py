@@ -9,8 +9,10 @@ import numpy as np
 from groundstation.mission import Mission, Phase, VehicleView, load_mission_params
 from groundstation.trajectories.basic import Circle, Line
 from link.messages import CommandKind
+from model.vehicle import load_vehicle
 
 P = load_mission_params()
+VEHICLE = load_vehicle("crazyflie")
 DT = 0.002
 
 
@@ -23,7 +25,7 @@ def view(t, pos, armed=True, vel=(0.0, 0.0, 0.0), mocap_age=0.0, healthy=True, d
 
 def airborne_mission(track=None):
     track = track or Line([0, 0, 1], [1, 0, 1], speed_mps=0.5)
-    m = Mission(P, track, lambda p: 0.0, track.sample(track.duration_s).position_m)
+    m = Mission(P, track, track.sample(track.duration_s).position_m, None, VEHICLE.collision_radius_m)
     start = track.sample(0.0).position_m
     t = 0.0
     m.update(t, view(t, start, armed=False))  # connect -> arm
@@ -44,7 +46,7 @@ def run_until(m, t, pos_fn, phase, limit_s=60.0, **kw):
 
 def test_arm_is_sent_and_repeated_until_the_vehicle_reports_armed():
     track = Line([0, 0, 1], [1, 0, 1], speed_mps=0.5)
-    m = Mission(P, track, lambda p: 0.0, track.sample(track.duration_s).position_m)
+    m = Mission(P, track, track.sample(track.duration_s).position_m, None, VEHICLE.collision_radius_m)
     assert m.update(0.0, None).phase == Phase.CONNECT  # nothing heard yet
     commands = [m.update(t, view(t, [0, 0, 0], armed=False)).command for t in np.arange(0.002, 1.0, DT)]
     arms = [c for c in commands if c == CommandKind.ARM]

@@ -33,7 +33,7 @@ def test_grid_shape_is_ceil_of_extent_over_resolution_without_rounding_up_exact_
     assert grid.shape == (math.ceil(5.7 / 0.4), math.ceil(4.35 / 1.0), math.ceil(1.9 / 0.5))
 
 
-def test_voxel_is_occupied_exactly_when_its_box_is_within_the_margin_of_a_block():
+def test_voxel_is_occupied_exactly_when_its_box_is_within_the_margin_of_a_block_or_its_centre_of_a_wall():
     rng = np.random.default_rng(3)
     blocks = []
     for _ in range(4):
@@ -44,8 +44,8 @@ def test_voxel_is_occupied_exactly_when_its_box_is_within_the_margin_of_a_block(
     grid = OccupancyGrid.from_world(world, res, margin)
     for index in np.ndindex(grid.shape):
         centre = grid.index_to_metric_center(index)
-        if np.any(centre > world.bounds[1::2]):
-            assert grid.occupied[index]  # centre beyond the upper bound: kept out of the free space
+        if np.any(centre > world.bounds[1::2] - margin) or np.any(centre < world.bounds[0::2] + margin):
+            assert grid.occupied[index]  # centre within the margin of a wall, or beyond it
             continue
         lo, hi = centre - res / 2, centre + res / 2
         sampled = sampled_box_distance(world, lo, hi)
@@ -64,6 +64,18 @@ def test_every_point_of_a_free_voxel_clears_the_margin():
     centres = grid.index_to_metric_center(free)
     points = centres + rng.uniform(-0.05, 0.05, centres.shape)
     assert np.all(world.distance_to_blocks(points) > 0.2)
+
+
+def test_path_points_stay_inside_the_bounds_minus_the_margin_at_a_coarse_resolution():
+    """Issue 14: with a 1 m voxel the course-style grid put a path point exactly on the bounds (y = ymax)."""
+    from groundstation.planning.astar import plan_path
+
+    world = World(bounds=np.array([0.0, 4.5, 0.0, 6.5, 0.0, 3.0]), blocks=np.zeros((0, 6)))
+    margin = 0.1
+    result = plan_path(world, 1.0, margin, [1.0, 1.0, 1.0], [3.0, 6.0, 2.0])
+    inner = result.path_m[1:-1]  # the voxel centres between the exact start and goal
+    assert result.found and len(inner)
+    assert np.all(inner >= world.bounds[0::2] + margin) and np.all(inner <= world.bounds[1::2] - margin)
 
 
 def test_voxel_centre_outside_the_upper_bound_is_occupied():

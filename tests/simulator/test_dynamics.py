@@ -172,7 +172,7 @@ def test_block_contact_is_a_crash_at_the_collision_radius(cf):
     dyn.set_state(velocity_enu_mps=(speed, 0.0, 0.0), rotor_speeds_radps=[cf.hover_rotor_speed_radps] * 4)
     radius = dyn.collision_radius_m
     arm = max(np.linalg.norm(p) for p in cf.rotor_positions_flu_m)
-    assert radius == pytest.approx(arm + CONTACT.prop_radius_m)
+    assert radius == pytest.approx(arm + cf.prop_radius_m) == pytest.approx(0.046 + 0.0225)
     _run(dyn, 3.0)
     t_contact = (block[0] - radius - (-1.0)) / speed
     assert dyn.crash is not None and "block 0" in dyn.crash.reason

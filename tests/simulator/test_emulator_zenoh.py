@@ -229,7 +229,8 @@ class Responder:
 @contextmanager
 def emulator(endpoint: str, *args: str):
     """`python -m cfstack emulator` connected to our endpoint; yields the process, stops it at the end."""
-    cmd = [sys.executable, "-m", "cfstack", "emulator", "--connect", endpoint, "--id", PREFIX, "--quiet", *args]
+    cmd = [sys.executable, "-m", "cfstack", "emulator", "--connect", endpoint, "--id", PREFIX, "--clock", "lockstep",
+           "--quiet", *args]
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)
     try:
@@ -378,7 +379,7 @@ def test_a_crash_into_a_block_reaches_the_ground_station_with_its_time_and_place
     world.write_text(json.dumps({"bounds": {"extents": [-2, 2, -2, 2, 0, 3]},
                                  "blocks": [{"extents": [-1, 1, -1, 1, ceiling_m, 2.0]}]}))
     params = load_firmware_params()
-    radius = params.contact.radius_for(VEHICLE)
+    radius = VEHICLE.collision_radius_m
     crash_z = ceiling_m - radius
     crash_time = math.sqrt(2.0 * crash_z / (0.5 * GRAVITY_MPS2))
     gs, code, lines = flight(free_endpoint(), hover_script(1.5 * VEHICLE.weight_n), crash_time + 0.8,
