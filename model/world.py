@@ -22,6 +22,11 @@ import numpy as np
 from model.errors import WorldError
 
 
+# A point this close below a block's top still rests on it: positions that crossed a MAVLink link are
+# float32 (1.16 m reads back as 1.1599999666 m; float32 spacing is 1.2e-7 m at 1 m, 1.9e-6 m at 20 m).
+RESTING_TOLERANCE_M = 1e-5
+
+
 @dataclass(frozen=True)
 class World:
     bounds: np.ndarray  # (6,) [xmin, xmax, ymin, ymax, zmin, zmax] m
@@ -90,7 +95,7 @@ class World:
             q = p[:, None, :]
             gaps = np.sqrt((np.maximum(np.maximum(b_lo - q, q - b_hi), 0.0) ** 2).sum(-1))
             pad = ((b_lo[..., 0] <= q[..., 0]) & (q[..., 0] <= b_hi[..., 0]) & (b_lo[..., 1] <= q[..., 1])
-                   & (q[..., 1] <= b_hi[..., 1]) & (b_hi[..., 2] <= q[..., 2] + 1e-9))
+                   & (q[..., 1] <= b_hi[..., 1]) & (b_hi[..., 2] <= q[..., 2] + RESTING_TOLERANCE_M))
             allowed = np.broadcast_to(np.asarray(pads_allowed, bool).reshape(-1, 1), pad.shape)
             gaps = np.where(pad & allowed, np.inf, gaps)
             nearest = gaps.argmin(axis=1)
