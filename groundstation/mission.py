@@ -67,6 +67,8 @@ _ABORTABLE_PHASES = (Phase.ARM, Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.
 class MissionParams:
     connect_timeout_s: float
     arm_timeout_s: float
+    reboot_repeat_s: float
+    reset_timeout_s: float
     settle_s: float
     end_hover_s: float
     max_end_hover_s: float
@@ -100,7 +102,8 @@ def load_mission_params(name_or_path: str = "mission") -> MissionParams:
     pos = {"minimum": 0.0}
     positive = {"minimum": 1e-6}
     return MissionParams(
-        **{k: timing.number(k, **pos) for k in ("connect_timeout_s", "arm_timeout_s", "settle_s", "end_hover_s",
+        **{k: timing.number(k, **pos) for k in ("connect_timeout_s", "arm_timeout_s", "reboot_repeat_s",
+                                                 "reset_timeout_s", "settle_s", "end_hover_s",
                                                  "max_end_hover_s", "heartbeat_period_s", "timesync_period_s",
                                                  "land_timeout_s", "final_report_wait_s",
                                                  "failsafe_observe_s")},
@@ -181,10 +184,10 @@ class Mission:
         self._last_sent_s: dict[CommandKind, float] = {}  # when each repeated command last went out
 
     # --- helpers ---------------------------------------------------------------------------------
-    def _repeated(self, kind: CommandKind, t: float) -> CommandKind | None:
-        """`kind` if it was not sent in the last COMMAND_REPEAT_S, else None: commands are re-sent until
-        the vehicle reports them done, because the uplink may lose them."""
-        if t - self._last_sent_s.get(kind, -math.inf) < COMMAND_REPEAT_S:
+    def _repeated(self, kind: CommandKind, t: float, period_s: float = COMMAND_REPEAT_S) -> CommandKind | None:
+        """`kind` if it was not sent in the last period_s, else None: commands are re-sent until the vehicle
+        reports them done, because the uplink may lose them."""
+        if t - self._last_sent_s.get(kind, -math.inf) < period_s:
             return None
         self._last_sent_s[kind] = t
         return kind
@@ -299,11 +302,11 @@ class Mission:
             self.resets += 1
             self._enter(Phase.ARM, t)
             return self._arm(t, view)
-        if t - self.phase_start_s > self.p.arm_timeout_s:
+        if t - self.phase_start_s > self.p.reset_timeout_s:
             self._fail(t, "crashed", "the crashed vehicle did not come back after REBOOT")
             self._enter(Phase.DONE, t)
             return MissionStep(Phase.DONE, None)
-        return MissionStep(self.phase, None, self._repeated(CommandKind.REBOOT, t))
+        return MissionStep(self.phase, None, self._repeated(CommandKind.REBOOT, t, self.p.reboot_repeat_s))
 
     def _arm(self, t: float, view: VehicleView) -> MissionStep:
         hold = at_rest(view.position_enu_m)

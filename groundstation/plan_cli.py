@@ -1,7 +1,9 @@
 """`cfstack plan WORLD`: plan a grid path through a world file and report it.
 
 Takes in: a world JSON file and options [--resolution R | --resolution RX RY RZ] [--margin M]
-[--start X Y Z] [--goal X Y Z] [--json] [--plot FILE] [--params TOML].
+[--start X Y Z] [--goal X Y Z] [--vehicle-model NAME] [--json] [--plot FILE] [--params TOML].
+The start and goal pass the same pre-flight check as in `fly` (groundstation.preflight): on the bounds
+they are moved inward by the vehicle's collision radius, with a warning; inside a block they are refused.
 Resolution and margin default to the world file's own values, else to planning.toml [grid].
 Gives out: on stdout the path length, nodes expanded and planning time (human), or with --json exactly
 one JSON object {found, path, length_m, nodes_expanded, planning_time_s} (path: list of [x, y, z] m,
@@ -22,36 +24,26 @@ import numpy as np
 from groundstation.planning import load_planning_params
 from groundstation.planning.astar import PathResult, plan_path
 from groundstation.planning.pruning import prune_path
-from model.errors import UserError
+from groundstation.preflight import checked_point
+from model.errors import OneLineParser, UserError
+from model.options import finite_float, non_negative_float, positive_float
+from model.vehicle import load_vehicle
 from model.world import World, load_world
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports bad arguments as a one-line UserError instead of usage + exit."""
-
-    def error(self, message: str):
-        raise UserError(message)
-
-
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="cfstack plan", description="Plan an A* path through a world file.")
+    p = OneLineParser(prog="cfstack plan", description="Plan an A* path through a world file.")
     p.add_argument("world", help="world JSON file")
-    p.add_argument(
-        "--resolution",
-        type=float,
-        nargs="+",
-        metavar="R",
-        help="voxel size in m: one value, or three (x y z); default: the world's, else planning.toml",
-    )
-    p.add_argument(
-        "--margin", type=float, help="clearance to blocks in m; default: the world's, else planning.toml"
-    )
-    p.add_argument(
-        "--start", type=float, nargs=3, metavar=("X", "Y", "Z"), help="start point, m (default: the world's)"
-    )
-    p.add_argument(
-        "--goal", type=float, nargs=3, metavar=("X", "Y", "Z"), help="goal point, m (default: the world's)"
-    )
+    p.add_argument("--resolution", type=positive_float, nargs="+", metavar="R",
+                   help="voxel size in m: one value, or three (x y z); default: the world's, else planning.toml")
+    p.add_argument("--margin", type=non_negative_float, metavar="M",
+                   help="clearance to blocks and walls in m; default: the world's, else planning.toml")
+    p.add_argument("--start", type=finite_float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="start point, m (default: the world's)")
+    p.add_argument("--goal", type=finite_float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="goal point, m (default: the world's)")
+    p.add_argument("--vehicle-model", default="crazyflie",
+                   help="vehicle parameters (its collision radius for the pre-flight check): name or TOML file")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     p.add_argument("--plot", metavar="FILE", help="write a PNG 3D view of blocks, path and pruned waypoints")
     p.add_argument("--params", default="planning", help="planning parameters: name or TOML file")
@@ -63,12 +55,15 @@ def command(argv: list[str]) -> int:
     params = load_planning_params(args.params)
     grid = params.table("grid")
     world = load_world(args.world)
-    for warning in world.warnings:
-        print(warning, file=sys.stderr)
+    radius_m = load_vehicle(args.vehicle_model).collision_radius_m
+    # The same pre-flight rule as `fly` (groundstation.preflight): a point on the bounds is moved inward.
+    nudges: list[str] = []
+    start = checked_point(world, _endpoint(args.start, world.start, "start", world), "start", radius_m, nudges)
+    goal = checked_point(world, _endpoint(args.goal, world.goal, "goal", world), "goal", radius_m, nudges)
+    for warning in (*world.warnings, *nudges):
+        print(f"warning: {warning}", file=sys.stderr)
     resolution = _resolution(args.resolution, world, grid.number("resolution_m", minimum=1e-6))
     margin = _margin(args.margin, world, grid.number("margin_m", minimum=0.0))
-    start = _endpoint(args.start, world.start, "start", world)
-    goal = _endpoint(args.goal, world.goal, "goal", world)
     result = plan_path(
         world,
         resolution,
@@ -93,18 +88,14 @@ def _resolution(given: list[float] | None, world: World, default: float) -> np.n
     if given is None:
         return world.resolution if world.resolution is not None else np.full(3, default)
     if len(given) not in (1, 3):
-        raise UserError(f"--resolution: expected 1 or 3 numbers, got {len(given)}")
-    res = np.broadcast_to(np.array(given, float), (3,)).copy()
-    if not np.all(np.isfinite(res)) or np.any(res <= 0):
-        raise UserError(f"--resolution: must be positive, got {given}")
-    return res
+        raise UserError(f"argument --resolution: give one value or three, not {len(given)} "
+                        "(see 'cfstack plan --help')")
+    return np.broadcast_to(np.array(given, float), (3,)).copy()
 
 
 def _margin(given: float | None, world: World, default: float) -> float:
     if given is None:
         return world.margin if world.margin is not None else default
-    if not np.isfinite(given) or given < 0:
-        raise UserError(f"--margin: must be >= 0, got {given}")
     return float(given)
 
 

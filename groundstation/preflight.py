@@ -28,7 +28,8 @@ def checked_point(world: World, point, name: str, radius_m: float, warnings: lis
     where = given.round(6).tolist()
     if not world.contains(given):
         raise WorldError(f"{world.source}: {name} {where} is outside the bounds {world.bounds.tolist()}")
-    if len(world.blocks) and world.inside_block(given):
+    # strictly inside: a point on a surface is judged by its distance below (a pad's top is allowed)
+    if len(world.blocks) and np.any(np.all((world.blocks[:, 0::2] < given) & (given < world.blocks[:, 1::2]), axis=1)):
         raise WorldError(f"{world.source}: {name} {where} is inside a block")
     nudged = world.nudged_inside(given, radius_m)
     moved = float(np.linalg.norm(nudged - given))

@@ -21,7 +21,6 @@ import numpy as np
 
 from model.errors import WorldError
 
-
 # A point this close below a block's top still rests on it: positions that crossed a MAVLink link are
 # float32 (1.16 m reads back as 1.1599999666 m; float32 spacing is 1.2e-7 m at 1 m, 1.9e-6 m at 20 m).
 RESTING_TOLERANCE_M = 1e-5

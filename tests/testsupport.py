@@ -4,13 +4,16 @@ Takes in: nothing (the shared worlds are looked for at ../shared/worlds beside t
 puts them).
 Gives out: SHARED_WORLDS, `shared_world(name)` (the file, or a visible skip saying why it is absent),
 `shared_world_params(*patterns)` (pytest parameters over the matching files, or one skipped parameter
-naming the missing folder, so the cases never vanish silently), and `free_port(kind)` (the product's
-link.transports.base.free_loopback_port).
+naming the missing folder, so the cases never vanish silently), `free_port(kind)` (the product's
+link.transports.base.free_loopback_port) and `cfstack(*args)` (the command as a user runs it: a
+subprocess, output captured, no stdin, a timeout).
 Importable from every test module (pyproject.toml: pytest pythonpath = ["tests"]).
 """
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -42,3 +45,9 @@ def shared_world_params(*patterns: str) -> list:
     for pattern in patterns:
         stems += sorted(p.stem for p in SHARED_WORLDS.glob(pattern) if p.stem not in stems)
     return stems
+
+
+def cfstack(*args: str, timeout: float = 240, **kw) -> subprocess.CompletedProcess:
+    """`python -m cfstack ARGS` as a user runs it; stdout and stderr captured as text."""
+    return subprocess.run([sys.executable, "-m", "cfstack", *args], capture_output=True, text=True,
+                          timeout=timeout, stdin=subprocess.DEVNULL, **kw)

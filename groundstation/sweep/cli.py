@@ -19,6 +19,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from groundstation.preflight import checked_world
 from groundstation.sweep.grid import (
     DEFAULT_CELL_TIMEOUT_S,
     MODES,
@@ -32,7 +33,9 @@ from groundstation.sweep.plot import plot_sweep
 from groundstation.sweep.runner import run_cells
 from groundstation.sweep.table import CellResult, _check_resume, read_csv, survival_lines, table_text, write_csv
 from model.errors import OneLineParser, UserError
+from model.options import positive_float, seed, whole_number
 from model.radio import radio_profile_path
+from model.vehicle import load_vehicle
 from model.world import load_world
 
 DEFAULT_BASE_PROFILE = "ideal"  # no impairment but the swept ones
@@ -52,10 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one-way latencies to sweep, ms (comma-separated; repeatable)")
     p.add_argument("--loss", action="append", required=True, metavar="PCT,...",
                    help="i.i.d. frame losses to sweep, %% per direction (comma-separated; repeatable)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--jobs", type=whole_number(1, "a number of flights"), default=os.cpu_count() or 1,
                    help="flights at a time (default: the number of cores)")
     p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default ./{DEFAULT_OUT})")
-    p.add_argument("--seed", type=int, default=1, help="seed of every flight (default 1)")
+    p.add_argument("--seed", type=seed, default=1, help="seed of every flight (default 1)")
     p.add_argument("--radio", default=DEFAULT_BASE_PROFILE,
                    help=f"base radio profile, built-in name or TOML file (default {DEFAULT_BASE_PROFILE})")
     p.add_argument("--extra", action="append", default=[], metavar='"ARGS"',
@@ -63,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(repeatable)")
     p.add_argument("--latency-compensation", action=argparse.BooleanOptionalAction, default=None,
                    help="pass --latency-compensation / --no-latency-compensation to every flight")
-    p.add_argument("--timeout", type=float, default=DEFAULT_CELL_TIMEOUT_S, metavar="S",
+    p.add_argument("--timeout", type=positive_float, default=DEFAULT_CELL_TIMEOUT_S, metavar="S",
                    help=f"wall-clock limit of one flight, s (default {DEFAULT_CELL_TIMEOUT_S:g}); a timeout is a "
                         "failed cell")
     p.add_argument("--resume", action="store_true", help="skip the cells already in OUT/sweep.csv")
@@ -104,6 +107,17 @@ def _check_extra(extra: str) -> tuple[str, ...]:
     return tokens
 
 
+def _vehicle_model(extra: tuple[str, ...]) -> str:
+    """The --vehicle-model the flights will use (the last one given in --extra), else fly's default."""
+    model = "crazyflie"
+    for i, token in enumerate(extra):
+        if token.startswith("--vehicle-model="):
+            model = token.split("=", 1)[1]
+        elif token == "--vehicle-model" and i + 1 < len(extra):
+            model = extra[i + 1]
+    return model
+
+
 def _glue_extra(argv: Sequence[str]) -> list[str]:
     """`--extra "--from-ground"` -> `--extra=--from-ground`: argparse would take a value that looks like an
     option for a missing argument."""
@@ -117,21 +131,18 @@ def _glue_extra(argv: Sequence[str]) -> list[str]:
 def parse_options(argv: Sequence[str]) -> SweepOptions:
     """Checked options; a one-line UserError for anything wrong."""
     args = build_parser().parse_args(_glue_extra(argv))
-    if args.jobs < 1:
-        raise UserError(f"--jobs {args.jobs}: must be at least 1")
-    if args.seed < 0:
-        raise UserError(f"--seed {args.seed}: must be >= 0")
-    if not (math.isfinite(args.timeout) and args.timeout > 0.0):
-        raise UserError(f"--timeout {args.timeout}: must be > 0 s")
+    extra = _check_extra(" ".join(args.extra))
     if args.world is not None:
-        load_world(args.world)  # fail now, not after the first flight (WorldError names the file)
+        # Fail now, not after the first flight: the same pre-flight check as fly (a start or goal inside a
+        # block is refused, naming the file); fly itself moves a point on the bounds and warns.
+        checked_world(load_world(args.world), load_vehicle(_vehicle_model(extra)).collision_radius_m)
     modes = tuple(dict.fromkeys(args.mode)) if args.mode else MODES
     return SweepOptions(
         world=args.world, modes=modes,
         latencies_ms=parse_number_list(args.latency, "--latency"),
         losses_pct=parse_number_list(args.loss, "--loss", maximum=PCT_PER_UNIT),
         jobs=args.jobs, out=Path(args.out), seed=args.seed, radio_base=args.radio,
-        extra=_check_extra(" ".join(args.extra)), latency_compensation=args.latency_compensation,
+        extra=extra, latency_compensation=args.latency_compensation,
         timeout_s=args.timeout, resume=args.resume)
 
 

@@ -47,7 +47,7 @@ from simulator.fleet import GroundFrameGate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from testsupport import free_port  # noqa: E402
+from testsupport import cfstack, free_port  # noqa: E402
 
 VEHICLE = load_vehicle("crazyflie")
 LIMITS = ActuatorLimits.from_vehicle(VEHICLE)
@@ -76,11 +76,6 @@ def world(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("world") / "dash.json"
     path.write_text(json.dumps(WORLD))
     return path
-
-
-def cfstack(*args, env: dict | None = None, timeout: float = TIMEOUT_S) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cfstack", *args], capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL, env=env)
 
 
 def fly(world: Path, folder: Path, *extra: str, radio: str = RADIO, env: dict | None = None):

@@ -25,18 +25,13 @@ from model.vehicle import load_vehicle
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from testsupport import free_port  # noqa: E402
+from testsupport import cfstack, free_port  # noqa: E402
 
 SUMMARY_KEYS = {"result", "reached_goal", "collided", "min_clearance_m", "flight_time_s", "rms_tracking_error_m",
                 "max_tracking_error_m", "final_position_error_m", "estimator", "link", "sim_time_s",
                 "wall_time_s", "log_dir"}
 LINK_KEYS = {"uplink_sent", "uplink_delivered", "downlink_sent", "downlink_delivered", "rtt_ms_p50", "rtt_ms_p99"}
 HOVER_RMS_TARGET_M = 0.01  # issue 4
-
-
-def cfstack(*args, timeout=240, **kw):
-    return subprocess.run([sys.executable, "-m", "cfstack", *args], capture_output=True, text=True,
-                          timeout=timeout, stdin=subprocess.DEVNULL, **kw)
 
 
 def check_summary(summary: dict) -> None:

@@ -1,0 +1,112 @@
+"""The README's two-process session, exactly as written: `cfstack emulator` and `cfstack groundstation` with
+their defaults (realtime clock, zenoh on tcp/127.0.0.1:7447), then what a user does when a ground station
+dies mid-flight: the vehicle's watchdog lets it fall, the emulator reports the crash, the next ground station
+says so with the way out, and `--reset` reboots the vehicle and flies. Link counters are per session.
+"""
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from testsupport import cfstack
+
+from link.transports.zenoh_session import DEFAULT_ENDPOINT
+
+DEFAULT_PORT = int(DEFAULT_ENDPOINT.rsplit(":", 1)[1])
+HOVER = ("--trajectory", "hover")
+
+
+def _port_free(port: int) -> bool:
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+class Emulator:
+    """`cfstack emulator` with no options; its stderr lines collected as they come."""
+
+    def __init__(self):
+        self.proc = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator"], stdin=subprocess.DEVNULL,
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        self.lines: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.proc.stderr:
+            self.lines.append(line.rstrip())
+
+    def wait_for(self, text: str, timeout_s: float) -> str:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            found = [line for line in self.lines if text in line]
+            if found:
+                return found[-1]
+            time.sleep(0.1)
+        raise AssertionError(f"no emulator line with {text!r} within {timeout_s} s: {self.lines[-5:]}")
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            return self.proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            raise
+
+
+@pytest.fixture(scope="module")
+def emulator():
+    if not _port_free(DEFAULT_PORT):
+        pytest.skip(f"port {DEFAULT_PORT} (the default endpoint {DEFAULT_ENDPOINT}) is in use on this machine")
+    emu = Emulator()
+    emu.wait_for("emulator up", 30)
+    yield emu
+    assert emu.stop() == 0
+
+
+def groundstation(log: Path, *extra: str) -> tuple[subprocess.CompletedProcess, dict | None]:
+    run = cfstack("groundstation", *HOVER, "--json", "--log", str(log), *extra, timeout=120)
+    return run, (json.loads(run.stdout) if run.stdout.strip() else None)
+
+
+def test_the_readme_two_process_session_flies_with_the_defaults(emulator, tmp_path):
+    run, summary = groundstation(tmp_path / "log")
+    assert run.returncode == 0 and summary["result"] == "reached_goal", run.stderr
+    assert "realtime clock" in emulator.wait_for("emulator up", 1)
+    link = summary["link"]
+    assert 0 < link["uplink_delivered"] <= link["uplink_sent"] and link["uplink_lost"] >= 0
+
+
+def test_a_killed_ground_station_then_a_reset_flies_again(emulator, tmp_path):
+    first = subprocess.Popen([sys.executable, "-m", "cfstack", "groundstation", *HOVER, "--log", str(tmp_path / "a")],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    states = tmp_path / "a" / "states.csv"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and b"hover" not in (states.read_bytes()[-4000:] if states.exists() else b""):
+        time.sleep(0.2)
+    first.send_signal(signal.SIGKILL)
+    first.wait(timeout=10)
+    # no more setpoints: the firmware's watchdog levels, then stops the motors, and the vehicle falls
+    crash_line = emulator.wait_for("crashed", 30)
+    assert "hit the floor" in crash_line and "--reset" in crash_line
+
+    refused, summary = groundstation(tmp_path / "b")
+    assert refused.returncode == 1 and summary["result"] == "crashed"
+    message = refused.stderr.strip().splitlines()[-1]
+    assert "already reports CRASHED" in message and "--reset" in message
+
+    reset, summary = groundstation(tmp_path / "c", "--reset")
+    assert reset.returncode == 0 and summary["result"] == "reached_goal", reset.stderr
+    assert summary["mission"]["vehicle_resets"] == 1
+    assert len([line for line in emulator.lines if "reset by a ground station's REBOOT" in line]) == 1
+    # the vehicle's uplink counters are this session's, not the emulator's lifetime totals
+    link = summary["link"]
+    assert 0 < link["uplink_delivered"] <= link["uplink_sent"] and link["uplink_lost"] >= 0
