@@ -55,12 +55,13 @@ def result_from_fly(cell: Cell, exit_code: int | None, stdout: str, stderr: str,
         return CellResult(cell, success=False, result="timeout" if timed_out else "crash", reason=reason,
                           wall_time_s=wall_s, exit_code=exit_code, log_dir=str(log_dir))
     reached = summary.get("reached_goal") is True
+    failure = summary.get("failure") or {}  # a crash's or failsafe's one line (groundstation.grading)
     collided = summary.get("collided") is True
     # Stopped for its timeout, fly may still land and print a summary ("aborted"): the cell timed out.
     return CellResult(
         cell, success=reached and not collided and exit_code == 0 and not timed_out,
         result="timeout" if timed_out else str(summary["result"]),
-        reached_goal=reached, collided=collided, reason=summary.get("failsafe_reason"),
+        reached_goal=reached, collided=collided, reason=failure.get("reason") or summary.get("failsafe_reason"),
         rms_tracking_error_m=_float_or_none(summary.get("rms_tracking_error_m")),
         max_tracking_error_m=_float_or_none(summary.get("max_tracking_error_m")),
         min_clearance_m=_float_or_none(summary.get("min_clearance_m")),
