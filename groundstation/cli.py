@@ -169,6 +169,16 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
         allow_reset=getattr(args, "reset", False))
 
 
+def _explain_silence(summary: dict, zopts: dict) -> None:
+    """No vehicle ever answered: say where the ground station looked and how to point it elsewhere."""
+    failure = summary.get("failure")
+    if failure is not None and summary["result"] == "aborted" and "no heartbeat" in failure["reason"]:
+        where = ", ".join([f"connect {e}" for e in zopts.get("connect") or []]
+                          + [f"listen {e}" for e in zopts.get("listen") or []])
+        failure["reason"] += (f" (nothing answered on zenoh {where}: start `cfstack emulator` there, or point "
+                              "--connect/--listen at the vehicle's endpoint)")
+
+
 def _report(summary: dict, as_json: bool, prog: str) -> int:
     """Print the summary (and the failure line on stderr); the exit code follows the mission."""
     failure = summary.get("failure")
@@ -198,6 +208,7 @@ def groundstation_command(argv: list[str]) -> int:
     if not zopts.get("connect") and not zopts.get("listen"):
         zopts["connect"] = [DEFAULT_ENDPOINT]  # where `cfstack emulator` listens by default
     result = run_session(_options(args, world, track, goal, extra, plan, args.clock, zopts))
+    _explain_silence(result.summary, zopts)
     return _report(result.summary, args.json, p.prog)
 
 

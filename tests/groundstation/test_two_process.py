@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from testsupport import cfstack
+from testsupport import cfstack, free_port
 
 from link.transports.zenoh_session import DEFAULT_ENDPOINT
 
@@ -110,3 +110,11 @@ def test_a_killed_ground_station_then_a_reset_flies_again(emulator, tmp_path):
     # the vehicle's uplink counters are this session's, not the emulator's lifetime totals
     link = summary["link"]
     assert 0 < link["uplink_delivered"] <= link["uplink_sent"] and link["uplink_lost"] >= 0
+
+
+def test_a_ground_station_with_nobody_to_talk_to_says_where_it_looked(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    run, summary = groundstation(tmp_path / "log", "--connect", endpoint)
+    assert run.returncode == 1 and summary["result"] == "aborted"
+    lines = [line for line in run.stderr.splitlines() if line.startswith("cfstack groundstation:")]
+    assert len(lines) == 1 and "no heartbeat" in lines[0] and endpoint in lines[0] and "--connect" in lines[0]
