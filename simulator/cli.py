@@ -61,6 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=seed, default=1, help="seed of every random source (>= 0)")
     p.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
     p.add_argument("--physics-rate", type=positive_float, default=1000.0, help="physics steps per second")
+    p.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
+                   help="the onboard side: ideal (the lab report's geometric law on the true state, exact mixer; "
+                        "default) or crazyflie (the Crazyflie's PID stabilizer on its own estimate, PWM, battery)")
     p.add_argument("--airborne", action="store_true", help="start hovering at the start point instead of on the floor")
     p.add_argument("--start", type=finite_float, nargs=3, metavar=("X", "Y", "Z"),
                    help="start of vehicle 1 (ENU, m); further vehicles 0.5 m apart along +x")
@@ -105,7 +108,7 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         radio=load_radio_profile(args.radio), world=world, vehicles=args.vehicles, seed=args.seed,
         clock=args.clock, physics_rate_hz=args.physics_rate, prefix=args.prefix,
         connection="zenoh", zenoh_options=_zenoh_options(args), start_positions_enu_m=starts,
-        airborne=args.airborne, signing=signing_from_args(args), duration_s=args.duration,
+        airborne=args.airborne, firmware=args.firmware, signing=signing_from_args(args), duration_s=args.duration,
         lookahead=args.lookahead, keep_ledger=args.radio_ledger is not None,
         radio_cuts=tuple(Outage(at, duration) for at, duration in args.cut_radio),
         mocap_cuts=tuple(Outage(at, duration) for at, duration in args.cut_mocap),

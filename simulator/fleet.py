@@ -93,7 +93,7 @@ class VehicleNode:
         self.sim = SimVehicle(config.vehicle, np.random.default_rng(sim_seed), world=config.world,
                               mocap_room=config.mocap_room, vehicle_id=vehicle_id,
                               physics_rate_hz=config.physics_rate_hz, initial_position_enu_m=start,
-                              airborne=config.airborne, profile=config.profile)
+                              airborne=config.airborne, profile=config.profile, firmware=config.firmware)
         self.uplink_radio = RadioChannel(config.radio, np.random.default_rng(up_seed), name=f"uplink {vehicle_id}",
                                          keep_ledger=config.keep_ledger)
         self.downlink_radio = RadioChannel(config.radio, np.random.default_rng(down_seed),

@@ -36,7 +36,7 @@ import numpy as np
 
 from link.messages import Message, TimeSync, TruthState
 from model.errors import UserError, WorldError
-from model.vehicle import MocapRoom, Vehicle
+from model.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
 from model.world import World
 from simulator.dynamics import Crash, QuadrotorDynamics
 from simulator.firmware import Firmware, FirmwareParams, load_firmware_params
@@ -78,7 +78,7 @@ class SimVehicle:
                  mocap_room: MocapRoom | None = None, vehicle_id: int = 1, physics_rate_hz: float = 1000.0,
                  initial_position_enu_m=(0.0, 0.0, 0.0),
                  firmware_params: FirmwareParams | str | Path | None = None,
-                 airborne: bool = False, profile: bool = False):
+                 airborne: bool = False, profile: bool = False, firmware: str = "ideal"):
         if not (isinstance(physics_rate_hz, (int, float)) and math.isfinite(physics_rate_hz)
                 and physics_rate_hz > 0.0):
             raise UserError(f"physics rate must be a positive number of Hz, got {physics_rate_hz!r}")
@@ -92,7 +92,11 @@ class SimVehicle:
         self._dt_s = 1.0 / physics_rate_hz
         self.dynamics = self._new_dynamics(self.start_enu_m)
         self.reboots = 0  # REBOOT commands carried out
-        self.firmware = Firmware(vehicle, params)
+        self.firmware_kind = firmware
+        self.firmware = make_firmware(firmware, vehicle, params)
+        # The faithful firmware flies on its IMU: a sample due with a firmware cycle is taken first, as the
+        # Crazyflie's stabilizer runs on each fresh IMU reading; the ideal one reads the body directly.
+        self._imu_before_firmware = hasattr(self.firmware, "take_imu")
         imu_rng, mocap_rng = rng.spawn(2)
         self.imu = ImuModel(vehicle.imu, imu_rng)
         self.mocap = MocapModel(mocap_room, mocap_rng, vehicle_id) if mocap_room is not None else None
@@ -120,6 +124,7 @@ class SimVehicle:
             hover = vehicle.hover_rotor_speed_radps
             if not self.dynamics.on_ground:
                 self.dynamics.set_state(rotor_speeds_radps=(hover,) * 4)
+            self._calibrate_before_takeoff()
             self.firmware.start_hovering(0.0)
 
     # --- public -----------------------------------------------------------------------------------
@@ -160,6 +165,8 @@ class SimVehicle:
         d = self.dynamics
         t = d.t_s
         if t + _EPS_S >= self._due_s:  # most steps at 1 kHz have nothing due but the physics
+            if self._imu_before_firmware and t + _EPS_S >= self._imu.next_s:
+                self._sample_imu(t)
             if t + _EPS_S >= self._fw.next_s:
                 if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
                     self._deliver_due(t)
@@ -177,10 +184,22 @@ class SimVehicle:
         old = self.dynamics
         self.dynamics = self._new_dynamics(self._ground_start())
         self.dynamics.continue_clock(old.steps)
-        self.firmware = Firmware(self.vehicle, self.params)
+        self.firmware = make_firmware(self.firmware_kind, self.vehicle, self.params)
         self.reboots += 1
         if self.timing_s:  # profiled: time the new body's physics too
             time_parts(self.dynamics, {"step": "physics"}, self.timing_s)
+
+    def _calibrate_before_takeoff(self) -> None:
+        """An airborne start with the faithful firmware: it booted on the floor before t = 0 and took its gyro
+        bias there (the firmware's boot calibration), from IMU samples at rest that are not published."""
+        calibrate = getattr(self.firmware, "calibrate_gyro", None)
+        if calibrate is None:
+            return
+        at_rest = (0.0, 0.0, GRAVITY_MPS2)
+        dt = 1.0 / self.imu.rate_hz
+        count = self.firmware.cf.gyro_bias_samples
+        samples = [self.imu.sample(-(count - k) * dt, at_rest, (0.0, 0.0, 0.0)).rate_flu_radps for k in range(count)]
+        calibrate([tuple(math.degrees(w) for w in rate) for rate in samples])
 
     def _ground_start(self) -> tuple[float, float, float]:
         x, y, z = self.start_enu_m
@@ -263,7 +282,10 @@ class SimVehicle:
         if dv != (0.0, 0.0, 0.0):  # a touchdown since the last sample: its impulse over the sample period
             rate = self.imu.rate_hz
             f = (f[0] + dv[0] * rate, f[1] + dv[1] * rate, f[2] + dv[2] * rate)
-        self._out.append(Output(t, "downlink", self.imu.sample(t, f, d.rate_flu_radps)))
+        sample = self.imu.sample(t, f, d.rate_flu_radps)
+        if self._imu_before_firmware:
+            self.firmware.take_imu(sample)
+        self._out.append(Output(t, "downlink", sample))
 
     def _sample_mocap(self, t: float) -> None:
         self._mocap.advance(t)
@@ -275,6 +297,21 @@ class SimVehicle:
     def _emit_truth(self, t: float) -> None:
         self._truth.advance(t)
         self._out.append(Output(t, "truth", self.dynamics.truth()))
+
+
+FIRMWARES = ("ideal", "crazyflie")
+
+
+def make_firmware(kind: str, vehicle: Vehicle, params: FirmwareParams) -> Firmware:
+    """The onboard side: "ideal" (the lab report's geometric law on the true state, exact mixer) or
+    "crazyflie" (the Crazyflie's own stabilizer on its own estimate: simulator.crazyflie)."""
+    if kind == "ideal":
+        return Firmware(vehicle, params)
+    if kind == "crazyflie":
+        from simulator.crazyflie.stabilizer import CrazyflieFirmware
+
+        return CrazyflieFirmware(vehicle, params)
+    raise UserError(f"firmware: '{kind}' is not one of {', '.join(FIRMWARES)}")
 
 
 def _release_time(output: Output) -> float:

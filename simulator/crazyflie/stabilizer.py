@@ -1,0 +1,256 @@
+"""The faithful firmware: the emulator's commander with the Crazyflie's stabilizer (crazyflie-firmware
+src/modules/src/stabilizer.c) in place of the ideal attitude law and exact mixer (`--firmware crazyflie`).
+
+Takes in: what simulator.firmware.Firmware takes (uplink setpoints and commands with their arrival time, a
+tick per commander cycle), plus every IMU sample (`take_imu`), which is all the onboard side knows of its
+motion: the controller flies on its own estimate, never on the simulation's truth.
+Gives out: rotor speed commands (rad/s) for the physics, made from the motor forces the firmware's PWM
+produces on the battery's sagging voltage; the per-motor PWM, battery voltage and estimate for logs.
+
+Per IMU sample (500 Hz for the Crazyflie models; the firmware's 1 kHz main loop would repeat the same
+500 Hz control on the ticks in between):
+1. gyro bias: the mean of the first samples taken disarmed at rest (the firmware's boot calibration) is
+   subtracted from every gyro sample;
+2. estimator (every second sample, 250 Hz): the complementary filter (sensfusion6.py) and the vertical
+   velocity it integrates (position_estimator_altitude.c);
+3. controller (each commander tick, 500 Hz), by the setpoint's kind:
+   - AttitudeTarget: roll, pitch, yaw absolute (deg, legacy pitch), thrust N -> PWM = T / (4 THRUST_MAX)
+     65535, through the PID controller (controller_pid.py) and the legacy mixer; its body rates are not
+     used (the PID controller's absolute modes have no rate feed-forward);
+   - ThrustMoment: the force-torque mixer (the firmware's controlModeForceTorque path);
+   - the watchdog's level-out (supervisorOverrideSetpoint): roll = pitch = 0, yaw rate 0, thrust kept;
+   - LAND: level, yaw rate 0, thrust from the onboard vertical velocity estimate (see _landing_thrust);
+4. power: battery compensation with the low-passed measured voltage, the cap, then per motor the thrust
+   curve at the battery's true terminal voltage, which sags with the current drawn (battery.py).
+What is simpler than the firmware: see the README (no Kalman filter, no position loops yet, no tumble
+detection, the 1 kHz loop run at the IMU's 500 Hz).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from link.messages import BatteryStatus, ImuSample, VehicleMode
+from model.config import Params, resolve
+from model.frames import euler_zyx_of
+from model.vehicle import GRAVITY_MPS2, Vehicle
+from simulator.crazyflie.attitude_controller import AttitudeController
+from simulator.crazyflie.battery import Battery
+from simulator.crazyflie.controller_pid import MODE_ABS, MODE_DISABLE, MODE_VELOCITY, ControllerPid, Setpoint
+from simulator.crazyflie.motors import ThrustCurve
+from simulator.crazyflie.power_distribution import ForceTorqueMixer, cap, legacy
+from simulator.crazyflie.sensfusion6 import Sensfusion6
+from simulator.firmware import MOTORS_OFF, BodyState, Firmware, FirmwareParams
+
+DEG_PER_RAD = 180.0 / math.pi
+G_MPS2 = 9.81  # the firmware's G (physicalConstants.h GRAVITY_MAGNITUDE), for m/s^2 <-> g
+ATTITUDE_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS)
+LEVEL_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_VELOCITY)
+
+
+@dataclass(frozen=True)
+class CrazyflieParams:
+    attitude_rate_hz: float
+    estimator_rate_hz: float
+    pid_rate: dict
+    pid_attitude: dict
+    curve: ThrustCurve
+    thrust_to_torque_m: float
+    arm_length_m: float
+    idle_thrust_pwm: int
+    compensation_b_per_1khz: float
+    initial_supply_v: float
+    two_kp: float
+    two_ki: float
+    gyro_bias_samples: int
+    v_acc_deadband_g: float
+    vel_z_alpha: float
+    battery: dict
+    source: str
+
+
+def load_crazyflie_params(name_or_path: str | Path = "crazyflie") -> CrazyflieParams:
+    p = Params.load(resolve(name_or_path, "simulator", "params", "Crazyflie firmware parameters"))
+    rates, power, comp = p.table("rates"), p.table("power"), p.table("battery_compensation")
+    fusion, altitude, battery = p.table("sensfusion6"), p.table("altitude_estimator"), p.table("battery")
+
+    def gains(table_name: str) -> dict:
+        t = p.table(table_name)
+        return {k: t.vector(k, 3) for k in ("kp", "ki", "kd", "integration_limit")}
+
+    v = power.vector("vmotor2thrust", 4)
+    pwm_max = int(power.number("pwm_max", minimum=1))
+    return CrazyflieParams(
+        attitude_rate_hz=rates.number("attitude_rate_hz", minimum=1.0),
+        estimator_rate_hz=rates.number("estimator_rate_hz", minimum=1.0),
+        pid_rate=gains("pid_rate"), pid_attitude=gains("pid_attitude"),
+        curve=ThrustCurve(v[0], v[1], v[2], v[3], power.number("thrust_min_n", minimum=0.0),
+                          power.number("thrust_max_n", minimum=1e-6), pwm_max,
+                          comp.number("min_supply_v", minimum=0.0)),
+        thrust_to_torque_m=power.number("thrust_to_torque_m", minimum=1e-9),
+        arm_length_m=power.number("arm_length_m", minimum=1e-6),
+        idle_thrust_pwm=int(power.number("idle_thrust_pwm", minimum=0, maximum=pwm_max)),
+        compensation_b_per_1khz=comp.number("filter_b_per_1khz_tick", minimum=0.0, maximum=1.0),
+        initial_supply_v=comp.number("initial_supply_v", minimum=0.0),
+        two_kp=fusion.number("two_kp", minimum=0.0), two_ki=fusion.number("two_ki", minimum=0.0),
+        gyro_bias_samples=int(p.table("gyro_calibration").number("bias_samples", minimum=1)),
+        v_acc_deadband_g=altitude.number("v_acc_deadband_g", minimum=0.0),
+        vel_z_alpha=altitude.number("vel_z_alpha", minimum=0.0, maximum=1.0),
+        battery={k: battery.number(k, minimum=0.0) for k in (
+            "internal_resistance_ohm", "hover_current_a", "hover_thrust_n", "nominal_voltage_v", "power_exponent")},
+        source=p.source,
+    )
+
+
+def _deadband(value: float, threshold: float) -> float:
+    """num.c deadband: 0 inside +-threshold, else shifted toward 0 by it."""
+    if abs(value) < threshold:
+        return 0.0
+    return value - threshold if value > 0.0 else value + threshold
+
+
+class CrazyflieFirmware(Firmware):
+    def __init__(self, vehicle: Vehicle, params: FirmwareParams, cf: CrazyflieParams | None = None):
+        super().__init__(vehicle, params)
+        cf = cf or load_crazyflie_params()
+        self.cf = cf
+        dt = 1.0 / cf.attitude_rate_hz
+        self.controller = ControllerPid(AttitudeController(cf.pid_attitude, cf.pid_rate, dt), dt)
+        self.force_torque = ForceTorqueMixer(cf.arm_length_m, cf.thrust_to_torque_m, cf.curve.thrust_max_n,
+                                             cf.curve.pwm_max)
+        self.fusion = Sensfusion6(cf.two_kp, cf.two_ki)
+        self.battery = Battery(vehicle.battery_capacity_mah, vehicle.battery_full_v, vehicle.battery_empty_v,
+                               **cf.battery)
+        self._pwm_per_n = cf.curve.pwm_max / (4.0 * cf.curve.thrust_max_n)  # collective N -> PWM units
+        # the 1 kHz filter constant, applied per 500 Hz tick: two 1 kHz steps
+        self._supply_b = 1.0 - (1.0 - cf.compensation_b_per_1khz) ** 2
+        self.supply_v = cf.initial_supply_v
+        self._k_thrust = vehicle.k_thrust
+        self._estimator_every = max(1, round(vehicle.imu.rate_hz / cf.estimator_rate_hz))
+        self._estimator_dt_s = self._estimator_every / vehicle.imu.rate_hz
+        self._imu_count = 0
+        self._gyro_sum = [0.0, 0.0, 0.0]
+        self._gyro_n = 0
+        self.gyro_bias_dps = (0.0, 0.0, 0.0)
+        self.gyro_dps = (0.0, 0.0, 0.0)
+        self.acc_g = (0.0, 0.0, 1.0)
+        self.base_z_acc_g: float | None = None
+        self.velocity_z_mps = 0.0
+        self.motor_pwm = (0, 0, 0, 0)
+        self.motor_forces_n = (0.0, 0.0, 0.0, 0.0)
+
+    # --- sensors and estimator ---------------------------------------------------------------------
+    def calibrate_gyro(self, samples_dps) -> None:
+        """The boot calibration done before this session (an airborne start): the mean of these samples."""
+        n = len(samples_dps)
+        self.gyro_bias_dps = tuple(sum(s[i] for s in samples_dps) / n for i in range(3))
+        self._gyro_n = self.cf.gyro_bias_samples
+
+    def take_imu(self, sample: ImuSample) -> None:
+        w, f = sample.rate_flu_radps, sample.specific_force_flu_mps2
+        raw = (w[0] * DEG_PER_RAD, w[1] * DEG_PER_RAD, w[2] * DEG_PER_RAD)
+        if not self.armed and self._gyro_n < self.cf.gyro_bias_samples:
+            s = self._gyro_sum
+            s[0] += raw[0]
+            s[1] += raw[1]
+            s[2] += raw[2]
+            self._gyro_n += 1
+            self.gyro_bias_dps = (s[0] / self._gyro_n, s[1] / self._gyro_n, s[2] / self._gyro_n)
+        b = self.gyro_bias_dps
+        self.gyro_dps = (raw[0] - b[0], raw[1] - b[1], raw[2] - b[2])
+        self.acc_g = (f[0] / G_MPS2, f[1] / G_MPS2, f[2] / G_MPS2)
+        self._imu_count += 1
+        if self._imu_count % self._estimator_every == 0:
+            self._update_estimate()
+
+    def _update_estimate(self) -> None:
+        dt = self._estimator_dt_s
+        self.fusion.update(self.gyro_dps, self.acc_g, dt)
+        qw, qx, qy, qz = self.fusion.q
+        gravity = (2.0 * (qx * qz - qw * qy), 2.0 * (qw * qx + qy * qz), qw * qw - qx * qx - qy * qy + qz * qz)
+        a = self.acc_g
+        acc_z = a[0] * gravity[0] + a[1] * gravity[1] + a[2] * gravity[2]
+        if self.base_z_acc_g is None:  # sensfusion6UpdateQ: the first reading is the at-rest 1 g
+            self.base_z_acc_g = acc_z
+        acc_wz = acc_z - self.base_z_acc_g
+        self.velocity_z_mps += _deadband(acc_wz, self.cf.v_acc_deadband_g) * dt * G_MPS2
+        self.velocity_z_mps *= self.cf.vel_z_alpha
+
+    @property
+    def estimate_rpy_deg(self) -> tuple[float, float, float]:
+        return self.fusion.euler_rpy_deg()
+
+    # --- the loop ----------------------------------------------------------------------------------
+    def tick(self, t_s: float, body: BodyState) -> tuple[float, ...]:
+        """One stabilizer pass; rotor speeds (rad/s) whose k_T w^2 are the motor forces."""
+        if body.crash is not None:
+            self.armed = False
+            self.mode = VehicleMode.CRASHED
+            return self._drive((0, 0, 0, 0))
+        if not self.armed:
+            self.controller.reinitialize(self.estimate_rpy_deg)
+            return self._drive((0, 0, 0, 0))
+        if self.mode == VehicleMode.LANDING:
+            if body.on_ground or t_s - self._landing_since_s > self.params.landing_timeout_s:
+                self.disarm()
+                return self._drive((0, 0, 0, 0))
+            return self._drive(self._through_pid(self._landing_setpoint()))
+        age_s = t_s - self._sp_arrival_s
+        if age_s > self._watchdog_from_s:
+            if age_s > self._shutdown_timeout_s:
+                self.disarm(watchdog=True)
+                return self._drive((0, 0, 0, 0))
+            self.mode = VehicleMode.LEVEL
+            return self._drive(self._through_pid(self._level_setpoint(self._sp_thrust_n)))
+        if self.mode == VehicleMode.ATTITUDE:
+            return self._drive(self._through_pid(self._attitude_setpoint()))
+        if self.mode == VehicleMode.MOMENTS:
+            return self._drive(self.force_torque.pwm(self._sp_thrust_n, self._sp_moment))
+        return self._drive(self._through_pid(self._level_setpoint(0.0)))  # armed, idle: thrust 0
+
+    def _attitude_setpoint(self) -> Setpoint:
+        roll, pitch, yaw = euler_zyx_of(self._sp_attitude)
+        return Setpoint(ATTITUDE_MODES, (roll * DEG_PER_RAD, -pitch * DEG_PER_RAD, yaw * DEG_PER_RAD),
+                        thrust_pwm=self._thrust_pwm(self._sp_thrust_n))
+
+    def _level_setpoint(self, thrust_n: float) -> Setpoint:
+        return Setpoint(LEVEL_MODES, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), self._thrust_pwm(thrust_n))
+
+    def _landing_setpoint(self) -> Setpoint:
+        """Level, yaw held, the thrust holding the descent speed on the onboard vertical velocity estimate:
+        T = m (g + k (v_des - v_z est)) (firmware.toml [landing]); no tilt boost (the estimate is level)."""
+        p = self.params
+        accel = GRAVITY_MPS2 + p.landing_velocity_gain_per_s * (-p.landing_descent_speed_mps - self.velocity_z_mps)
+        return self._level_setpoint(min(max(self.vehicle.mass_kg * accel, 0.0), self.vehicle.max_thrust_n))
+
+    def _thrust_pwm(self, thrust_n: float) -> float:
+        return min(max(thrust_n * self._pwm_per_n, 0.0), float(self.cf.curve.pwm_max))
+
+    def _through_pid(self, sp: Setpoint) -> tuple[int, int, int, int]:
+        return legacy(self.controller.update(sp, self.estimate_rpy_deg, self.gyro_dps))
+
+    def _drive(self, uncapped) -> tuple[float, ...]:
+        """Battery compensation, the cap, then the motors on the battery's true voltage."""
+        cf, curve = self.cf, self.cf.curve
+        self.supply_v += self._supply_b * (self.battery.voltage_v - self.supply_v)
+        compensated = tuple(int(curve.compensate(m, self.supply_v)) for m in uncapped)
+        pwm = cap(compensated, curve.pwm_max, cf.idle_thrust_pwm)
+        self.motor_pwm = pwm
+        v = self.battery.voltage_v
+        forces = tuple(curve.thrust_n(r, v) for r in pwm)
+        self.motor_forces_n = forces
+        self.battery.step(forces, self.tick_period_s)
+        k = self._k_thrust
+        return tuple(math.sqrt(f / k) for f in forces) if any(forces) else MOTORS_OFF
+
+    # --- reports -----------------------------------------------------------------------------------
+    @property
+    def state_of_charge(self) -> float:
+        return self.battery.charge_left
+
+    def battery_status(self) -> BatteryStatus:
+        return BatteryStatus(voltage_v=self.battery.voltage_v, remaining_pct=int(round(100.0 * self.state_of_charge)),
+                             rejected_commands=self.rejected_commands, uplink_received=self.uplink_received)
+
