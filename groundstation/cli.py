@@ -78,6 +78,9 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--controller", choices=("report", "full"),
                    help="SE(3) law: the lab report's (w_des = 0) or the full geometric controller with angular "
                         "velocity/acceleration feed-forward (default: the gains file's variant)")
+    g.add_argument("--extpose", action=argparse.BooleanOptionalAction, default=None,
+                   help="forward every mocap pose to the vehicle (MAVLink ATT_POS_MOCAP, as a mocap lab streams "
+                        "extpose) for its onboard estimator (default: on with --firmware crazyflie, else off)")
     g.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
     g.add_argument("-v", "--verbose", action="store_true")
     add_zenoh_arguments(p, mode_flag="--zenoh-mode")
@@ -109,6 +112,10 @@ def _emulator_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
     g.add_argument("--seed", type=seed, default=1, help="seed of every random source (0, 1, 2, ...)")
     g.add_argument("--from-ground", action="store_true", help="take off from the floor below the start")
+    g.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
+                   help="the emulated vehicle's onboard side: ideal (the lab report's geometric law on the true "
+                        "state, exact mixer; default) or crazyflie (the Crazyflie's PID stabilizer on its own "
+                        "estimate, PWM, battery; fly it with --vehicle-model cf21)")
     g.add_argument("--emulator-arg", dest="emulator_extra", action="append", default=[], metavar="ARG",
                    help="passed to the emulator child, e.g. --emulator-arg=--cut-mocap=8:2 (repeatable)")
 
@@ -165,8 +172,17 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
         vehicle_model=args.vehicle_model, gains=args.gains, controller_variant=args.controller,
         latency_compensation=(args.latency_compensation if args.latency_compensation is not None
                               else COMPENSATION_DEFAULT[args.mode]), log_dir=Path(args.log) if args.log else None,
-        signing=signing_from_args(args), extra_summary=extra, plan=plan,
-        allow_reset=getattr(args, "reset", False))
+        signing=signing_from_args(args), plan=plan,
+        # fly and step know which emulated firmware they started; a ground station alone does not
+        extra_summary={**extra, **({"firmware": args.firmware} if hasattr(args, "firmware") else {})},
+        allow_reset=getattr(args, "reset", False), extpose=_extpose(args))
+
+
+def _extpose(args) -> bool:
+    """--extpose as given; by default on when this command started a faithful (onboard-estimating) vehicle."""
+    if args.extpose is not None:
+        return args.extpose
+    return getattr(args, "firmware", "ideal") == "crazyflie"
 
 
 def _explain_silence(summary: dict, zopts: dict) -> None:
@@ -225,7 +241,7 @@ class EmulatorChild:
         self.endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
         cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
                "--radio", args.radio, "--seed", str(args.seed), "--id", args.prefix,
-               "--vehicle-model", args.vehicle_model, "--quiet"]
+               "--vehicle-model", args.vehicle_model, "--firmware", args.firmware, "--quiet"]
         if world_path:
             cmd += ["--world", world_path]
         if start is not None:  # the pre-flight-checked start (it may have been moved inside the bounds)

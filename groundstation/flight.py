@@ -26,6 +26,7 @@ from link.messages import (
     AttitudeTarget,
     BatteryStatus,
     CrashReport,
+    ExternalPose,
     Heartbeat,
     ImuSample,
     MocapPose,
@@ -83,8 +84,9 @@ class FlightRecord:
 class FlightLoop:
     def __init__(self, link, clock, estimator: ErrorStateKF, controller: SE3Controller, mission: Mission,
                  params: MissionParams, flight_log: FlightLog, mode: str, period_s: float,
-                 compensator: LatencyCompensator | None = None):
+                 compensator: LatencyCompensator | None = None, extpose: bool = False):
         self.link = link
+        self.extpose = extpose  # forward each mocap pose to the vehicle, as a mocap lab streams extpose
         self.clock = clock
         self.estimator = estimator
         self.controller = controller
@@ -127,9 +129,12 @@ class FlightLoop:
                 self.health.last_radio = msg
         for rx in inbox.mocap:
             if isinstance(rx.message, MocapPose):
-                self.last_pose = rx.message
-                self.estimator.add_mocap(rx.message)
+                pose = rx.message
+                self.last_pose = pose
+                self.estimator.add_mocap(pose)
                 self.health.mocap_times.append(now_s)
+                if self.extpose and not self.commands_stopped:
+                    self.link.send(ExternalPose(pose.time_s, pose.position_enu_m, pose.attitude_wxyz))
         for rx in inbox.truth:
             if isinstance(rx.message, TruthState):
                 self.truth = rx.message

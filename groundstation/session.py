@@ -71,6 +71,7 @@ class SessionOptions:
     plan: dict | None = None
     peer_failure: object = None  # callable: why the emulator child stopped, or None while it runs
     allow_reset: bool = False  # a vehicle already CRASHED at the start may be asked to reboot (--reset)
+    extpose: bool = False  # forward each mocap pose to the vehicle (ExternalPose) for its onboard estimator
 
 
 @dataclass
@@ -111,7 +112,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
                               allow_reset=opts.allow_reset)
             compensator = LatencyCompensator(vehicle, opts.mode, period) if opts.latency_compensation else None
             loop = FlightLoop(link, clock, estimator, controller, mission, params, flight_log, opts.mode, period,
-                              compensator)
+                              compensator, extpose=opts.extpose)
             loop.run()
         finally:
             link.close()

@@ -55,6 +55,17 @@ class MocapPose:
     attitude_wxyz: Quat
 
 
+@dataclass(frozen=True)
+class ExternalPose:
+    """The vehicle's own pose from an outside positioning system, sent to it by the ground station so that the
+    onboard estimator can fuse it (a mocap lab's extpose; wire: ATT_POS_MOCAP from the ground station's
+    system id). `time_s` is the pose's sample time on the mocap clock."""
+
+    time_s: float
+    position_enu_m: Vec3
+    attitude_wxyz: Quat
+
+
 class VehicleMode(IntEnum):
     """What the vehicle's onboard commander is doing (wire: HEARTBEAT custom_mode)."""
 
@@ -191,6 +202,7 @@ Message = (
     | AttitudeTarget
     | ImuSample
     | MocapPose
+    | ExternalPose
     | Heartbeat
     | VehicleCommand
     | TimeSync

@@ -103,6 +103,7 @@ class SimVehicle:
         self._fw = _Schedule(params.commander_rate_hz)
         self._imu = _Schedule(vehicle.imu.rate_hz)
         self._mocap = _Schedule(mocap_room.rate_hz) if mocap_room is not None else None
+        self._boot_calibration()
         self._truth = _Schedule(params.truth_rate_hz)
         self._heartbeat = _Schedule(params.heartbeat_rate_hz)
         self._battery = _Schedule(params.battery_rate_hz)
@@ -124,7 +125,6 @@ class SimVehicle:
             hover = vehicle.hover_rotor_speed_radps
             if not self.dynamics.on_ground:
                 self.dynamics.set_state(rotor_speeds_radps=(hover,) * 4)
-            self._calibrate_before_takeoff()
             self.firmware.start_hovering(0.0)
 
     # --- public -----------------------------------------------------------------------------------
@@ -185,13 +185,15 @@ class SimVehicle:
         self.dynamics = self._new_dynamics(self._ground_start())
         self.dynamics.continue_clock(old.steps)
         self.firmware = make_firmware(self.firmware_kind, self.vehicle, self.params)
+        self._boot_calibration()
         self.reboots += 1
         if self.timing_s:  # profiled: time the new body's physics too
             time_parts(self.dynamics, {"step": "physics"}, self.timing_s)
 
-    def _calibrate_before_takeoff(self) -> None:
-        """An airborne start with the faithful firmware: it booted on the floor before t = 0 and took its gyro
-        bias there (the firmware's boot calibration), from IMU samples at rest that are not published."""
+    def _boot_calibration(self) -> None:
+        """The faithful firmware was switched on lying still before t = 0 (as a lab's Crazyflie is, before its
+        ground station connects) and took its gyro bias then: the firmware's boot calibration, from IMU
+        samples at rest that are not published. The ideal firmware needs none."""
         calibrate = getattr(self.firmware, "calibrate_gyro", None)
         if calibrate is None:
             return

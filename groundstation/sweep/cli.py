@@ -41,8 +41,8 @@ from model.world import load_world
 DEFAULT_BASE_PROFILE = "ideal"  # no impairment but the swept ones
 DEFAULT_OUT = "sweep"
 BAR_WIDTH = 30
-SWEEP_OWNED_FLY_OPTIONS = ("--mode", "--radio", "--clock", "--seed", "--json", "--log", "--connect", "--listen",
-                           "--latency-compensation", "--no-latency-compensation")
+SWEEP_OWNED_FLY_OPTIONS = ("--mode", "--radio", "--firmware", "--clock", "--seed", "--json", "--log", "--connect",
+                           "--listen", "--latency-compensation", "--no-latency-compensation")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,6 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=positive_float, default=DEFAULT_CELL_TIMEOUT_S, metavar="S",
                    help=f"wall-clock limit of one flight, s (default {DEFAULT_CELL_TIMEOUT_S:g}); a timeout is a "
                         "failed cell")
+    p.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
+                   help="the emulated vehicle's onboard side for every flight (see `cfstack fly --help`)")
     p.add_argument("--resume", action="store_true", help="skip the cells already in OUT/sweep.csv")
     return p
 
@@ -143,7 +145,7 @@ def parse_options(argv: Sequence[str]) -> SweepOptions:
         losses_pct=parse_number_list(args.loss, "--loss", maximum=PCT_PER_UNIT),
         jobs=args.jobs, out=Path(args.out), seed=args.seed, radio_base=args.radio,
         extra=extra, latency_compensation=args.latency_compensation,
-        timeout_s=args.timeout, resume=args.resume)
+        timeout_s=args.timeout, resume=args.resume, firmware=args.firmware)
 
 
 class ProgressBar:

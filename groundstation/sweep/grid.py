@@ -35,12 +35,13 @@ class SweepOptions:
     latency_compensation: bool | None = None  # None: fly's default
     timeout_s: float = DEFAULT_CELL_TIMEOUT_S
     resume: bool = False
+    firmware: str = "ideal"  # the emulated vehicle's onboard side (fly --firmware)
 
     def settings(self) -> dict:
         """What makes two sweeps' cells comparable (written to sweep.json, checked by --resume)."""
         return {"world": str(Path(self.world).resolve()) if self.world else None, "seed": self.seed,
                 "radio_base": self.radio_base, "extra": list(self.extra),
-                "latency_compensation": self.latency_compensation}
+                "latency_compensation": self.latency_compensation, "firmware": self.firmware}
 
 
 def _num(x: float) -> str:

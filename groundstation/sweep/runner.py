@@ -70,12 +70,12 @@ def result_from_fly(cell: Cell, exit_code: int | None, stdout: str, stderr: str,
 
 
 def fly_argv(opts: SweepOptions, cell: Cell, profile: Path, log_dir: Path) -> list[str]:
-    """The `cfstack fly` command line of one cell (run as `python -m link`, the same program)."""
+    """The `cfstack fly` command line of one cell (run as `python -m cfstack`, the same program)."""
     argv = [sys.executable, "-m", "cfstack", "fly"]
     if opts.world:
         argv.append(str(Path(opts.world).resolve()))
     argv += ["--mode", cell.mode, "--radio", str(profile.resolve()), "--clock", "lockstep",
-             "--seed", str(opts.seed), "--json", "--log", str(log_dir.resolve())]
+             "--seed", str(opts.seed), "--firmware", opts.firmware, "--json", "--log", str(log_dir.resolve())]
     if opts.latency_compensation is not None:
         argv.append("--latency-compensation" if opts.latency_compensation else "--no-latency-compensation")
     return argv + list(opts.extra)

@@ -23,6 +23,8 @@ Mapping (message -> MAVLink message: fields):
                       The message has no body field: body_id travels as the frame's SOURCE SYSTEM ID,
                       as if the tracked vehicle's own companion computer sent it (PX4's convention for
                       external vision). Each source system id has its own sequence counter.
+    ExternalPose   -> ATT_POS_MOCAP from the ground station (system id 255) to the vehicle it describes
+                      (the vehicle's pose to fuse onboard); decoded as ExternalPose by that source id.
     Heartbeat      -> HEARTBEAT: type GCS (ground station) or QUADROTOR; base_mode SAFETY_ARMED when
                       armed (+ CUSTOM_MODE_ENABLED); custom_mode = VehicleMode, plus bit 8 when failsafe;
                       system_status FLIGHT_TERMINATION when CRASHED, else CRITICAL when failsafe, else
@@ -76,12 +78,14 @@ from dataclasses import dataclass, fields
 # The v20 dialect module speaks MAVLink 2 whatever MAVLINK20 says (only mavutil reads that variable).
 from pymavlink.dialects.v20 import common as mav
 
+from link.keys import GROUND_STATION_SYSTEM_ID
 from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck, Signing
 from link.messages import (
     AttitudeTarget,
     BatteryStatus,
     CommandKind,
     CrashReport,
+    ExternalPose,
     Heartbeat,
     ImuSample,
     Message,
@@ -294,6 +298,10 @@ def _enc_mocap(m: MocapPose, limits, target: int) -> bytes:
     return _PACK_MOCAP(_usec(m.time_s), *q, p[1], p[0], -p[2], *_NAN_COVARIANCE)
 
 
+def _enc_external_pose(m: ExternalPose, limits, target: int) -> bytes:
+    return _enc_mocap(MocapPose(m.time_s, target, m.position_enu_m, m.attitude_wxyz), limits, target)
+
+
 def _enc_heartbeat(m: Heartbeat, limits, target: int) -> bytes:
     mode = VehicleMode(m.mode)
     if m.is_ground_station:
@@ -383,6 +391,7 @@ _ENCODER_WIRES: dict[type, tuple[_Wire, Callable]] = {
     AttitudeTarget: (W_ATTITUDE, _enc_attitude_target),
     ImuSample: (W_IMU, _enc_imu),
     MocapPose: (W_MOCAP, _enc_mocap),
+    ExternalPose: (W_MOCAP, _enc_external_pose),
     Heartbeat: (W_HEARTBEAT, _enc_heartbeat),
     VehicleCommand: (W_COMMAND, _enc_command),
     TimeSync: (W_TIMESYNC, _enc_timesync),
@@ -435,7 +444,12 @@ def _dec_imu(v, system_id: int):
 
 
 def _dec_mocap(v, system_id: int):
-    return MocapPose(v[0] / 1e6, system_id, (v[6], v[5], -v[7]), quat_ned_frd_to_enu_flu(v[1:5])), 0
+    """ATT_POS_MOCAP: a mocap system's pose of body `system_id`, or, from the ground station, the receiving
+    vehicle's own pose to fuse (ExternalPose)."""
+    position, attitude = (v[6], v[5], -v[7]), quat_ned_frd_to_enu_flu(v[1:5])
+    if system_id == GROUND_STATION_SYSTEM_ID:
+        return ExternalPose(v[0] / 1e6, position, attitude), 0
+    return MocapPose(v[0] / 1e6, system_id, position, attitude), 0
 
 
 _VEHICLE_MODES = frozenset(int(m) for m in VehicleMode)

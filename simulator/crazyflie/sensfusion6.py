@@ -29,11 +29,11 @@ class Sensfusion6:
         half = 0.5 * yaw_deg * DEG
         self.q = [math.cos(half), 0.0, 0.0, math.sin(half)]
 
-    def update(self, gyro_dps, acc_g, dt_s: float) -> None:
+    def update(self, gyro_dps, acc_g, dt_s: float, use_accelerometer: bool = True) -> None:
         gx, gy, gz = gyro_dps[0] * DEG, gyro_dps[1] * DEG, gyro_dps[2] * DEG
         ax, ay, az = acc_g
         qw, qx, qy, qz = self.q
-        if not (ax == 0.0 and ay == 0.0 and az == 0.0):
+        if use_accelerometer and not (ax == 0.0 and ay == 0.0 and az == 0.0):
             norm = 1.0 / math.sqrt(ax * ax + ay * ay + az * az)
             ax, ay, az = ax * norm, ay * norm, az * norm
             halfvx = qx * qz - qw * qy
@@ -61,6 +61,17 @@ class Sensfusion6:
         qz += qa * gz + qb * gy - qc * gx
         norm = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
         self.q = [qw * norm, qx * norm, qy * norm, qz * norm]
+
+    def rotate_body(self, rx: float, ry: float, rz: float) -> None:
+        """q <- q (x) exp((rx, ry, rz) / 2): a small correction (rad) about the body axes."""
+        qw, qx, qy, qz = self.q
+        hx, hy, hz = 0.5 * rx, 0.5 * ry, 0.5 * rz
+        w = qw - qx * hx - qy * hy - qz * hz
+        x = qx + qw * hx + qy * hz - qz * hy
+        y = qy + qw * hy - qx * hz + qz * hx
+        z = qz + qw * hz + qx * hy - qy * hx
+        norm = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+        self.q = [w * norm, x * norm, y * norm, z * norm]
 
     def euler_rpy_deg(self) -> tuple[float, float, float]:
         """sensfusion6GetEulerRPY: roll, pitch (legacy sign), yaw in degrees."""

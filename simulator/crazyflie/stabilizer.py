@@ -12,7 +12,11 @@ Per IMU sample (500 Hz for the Crazyflie models; the firmware's 1 kHz main loop 
 1. gyro bias: the mean of the first samples taken disarmed at rest (the firmware's boot calibration) is
    subtracted from every gyro sample;
 2. estimator (every second sample, 250 Hz): the complementary filter (sensfusion6.py) and the vertical
-   velocity it integrates (position_estimator_altitude.c);
+   velocity it integrates (position_estimator_altitude.c). When the ground station streams the mocap pose
+   (ExternalPose, as a mocap lab streams extpose), each fix pulls the attitude toward it, compared with the
+   estimate at the fix's sample time, with the gain a Kalman filter would settle at for the gyro's noise
+   and the firmware's extQuatStdDev ([external_pose]); while fixes arrive the accelerometer does not correct
+   the attitude (in flight it measures thrust, not gravity). The first fix sets the attitude;
 3. controller (each commander tick, 500 Hz), by the setpoint's kind:
    - AttitudeTarget: roll, pitch, yaw absolute (deg, legacy pitch), thrust N -> PWM = T / (4 THRUST_MAX)
      65535, through the PID controller (controller_pid.py) and the legacy mixer; its body rates are not
@@ -28,11 +32,13 @@ detection, the 1 kHz loop run at the IMU's 500 Hz).
 
 from __future__ import annotations
 
+import bisect
 import math
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from link.messages import BatteryStatus, ImuSample, VehicleMode
+from link.messages import BatteryStatus, ExternalPose, ImuSample, VehicleMode
 from model.config import Params, resolve
 from model.frames import euler_zyx_of
 from model.vehicle import GRAVITY_MPS2, Vehicle
@@ -45,6 +51,7 @@ from simulator.crazyflie.sensfusion6 import Sensfusion6
 from simulator.firmware import MOTORS_OFF, BodyState, Firmware, FirmwareParams
 
 DEG_PER_RAD = 180.0 / math.pi
+HISTORY_LENGTH = 250  # estimator updates kept for external fixes: 1 s at 250 Hz, above any latency we model
 G_MPS2 = 9.81  # the firmware's G (physicalConstants.h GRAVITY_MAGNITUDE), for m/s^2 <-> g
 ATTITUDE_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS)
 LEVEL_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_VELOCITY)
@@ -65,6 +72,8 @@ class CrazyflieParams:
     two_kp: float
     two_ki: float
     gyro_bias_samples: int
+    ext_quat_std_rad: float
+    ext_fresh_for_s: float
     v_acc_deadband_g: float
     vel_z_alpha: float
     battery: dict
@@ -96,6 +105,8 @@ def load_crazyflie_params(name_or_path: str | Path = "crazyflie") -> CrazyfliePa
         initial_supply_v=comp.number("initial_supply_v", minimum=0.0),
         two_kp=fusion.number("two_kp", minimum=0.0), two_ki=fusion.number("two_ki", minimum=0.0),
         gyro_bias_samples=int(p.table("gyro_calibration").number("bias_samples", minimum=1)),
+        ext_quat_std_rad=p.table("external_pose").number("quat_std_rad", minimum=1e-9),
+        ext_fresh_for_s=p.table("external_pose").number("fresh_for_s", minimum=0.0),
         v_acc_deadband_g=altitude.number("v_acc_deadband_g", minimum=0.0),
         vel_z_alpha=altitude.number("vel_z_alpha", minimum=0.0, maximum=1.0),
         battery={k: battery.number(k, minimum=0.0) for k in (
@@ -140,6 +151,14 @@ class CrazyflieFirmware(Firmware):
         self.velocity_z_mps = 0.0
         self.motor_pwm = (0, 0, 0, 0)
         self.motor_forces_n = (0.0, 0.0, 0.0, 0.0)
+        # external pose fusion: the estimate's recent history (sample time, q) to meet each fix at its own time
+        self._history_t: deque[float] = deque(maxlen=HISTORY_LENGTH)
+        self._history_q: deque[list[float]] = deque(maxlen=HISTORY_LENGTH)
+        self._gyro_density = vehicle.imu.gyro_noise_density
+        self._last_ext_time_s: float | None = None
+        self._last_ext_arrival_s = -math.inf
+        self._imu_time_s = 0.0
+        self.external_poses = 0  # fused
 
     # --- sensors and estimator ---------------------------------------------------------------------
     def calibrate_gyro(self, samples_dps) -> None:
@@ -148,7 +167,49 @@ class CrazyflieFirmware(Firmware):
         self.gyro_bias_dps = tuple(sum(s[i] for s in samples_dps) / n for i in range(3))
         self._gyro_n = self.cf.gyro_bias_samples
 
+    def receive(self, message, arrival_s: float) -> bool:
+        if not super().receive(message, arrival_s):
+            return False
+        if isinstance(message, ExternalPose):
+            self._fuse_external(message, arrival_s)
+        return True
+
+    def _fuse_external(self, pose: ExternalPose, arrival_s: float) -> None:
+        """Correct the attitude toward the fix, compared with the estimate at the fix's own sample time
+        (the mocap and radio latency are not mistaken for an attitude error); the first fix sets it."""
+        q_ext = pose.attitude_wxyz
+        if not all(math.isfinite(v) for v in (*q_ext, pose.time_s)):
+            self.rejected_commands += 1
+            return
+        self._last_ext_arrival_s = arrival_s
+        if self._last_ext_time_s is None:
+            self.fusion.q = [float(v) for v in q_ext]
+            self._last_ext_time_s = pose.time_s
+            return
+        dt = min(max(pose.time_s - self._last_ext_time_s, 0.0), self.cf.ext_fresh_for_s)
+        self._last_ext_time_s = max(self._last_ext_time_s, pose.time_s)
+        then = self._estimate_at(pose.time_s)
+        # error rotation from the estimate then to the fix, in the body frame: q_then^* (x) q_ext
+        w0, x0, y0, z0 = then
+        w1, x1, y1, z1 = q_ext
+        ew = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
+        ex = w0 * x1 - x0 * w1 - y0 * z1 + z0 * y1
+        ey = w0 * y1 + x0 * z1 - y0 * w1 - z0 * x1
+        ez = w0 * z1 - x0 * y1 + y0 * x1 - z0 * w1
+        sign = 2.0 if ew >= 0.0 else -2.0
+        gain = self._gyro_density * math.sqrt(dt) / self.cf.ext_quat_std_rad
+        self.fusion.rotate_body(gain * sign * ex, gain * sign * ey, gain * sign * ez)
+        self.external_poses += 1
+
+    def _estimate_at(self, time_s: float) -> list[float]:
+        times = self._history_t
+        if not times:
+            return self.fusion.q
+        i = bisect.bisect_right(times, time_s) - 1
+        return self._history_q[max(i, 0)]
+
     def take_imu(self, sample: ImuSample) -> None:
+        self._imu_time_s = sample.time_s
         w, f = sample.rate_flu_radps, sample.specific_force_flu_mps2
         raw = (w[0] * DEG_PER_RAD, w[1] * DEG_PER_RAD, w[2] * DEG_PER_RAD)
         if not self.armed and self._gyro_n < self.cf.gyro_bias_samples:
@@ -167,7 +228,10 @@ class CrazyflieFirmware(Firmware):
 
     def _update_estimate(self) -> None:
         dt = self._estimator_dt_s
-        self.fusion.update(self.gyro_dps, self.acc_g, dt)
+        fixes = self._imu_time_s - self._last_ext_arrival_s <= self.cf.ext_fresh_for_s
+        self.fusion.update(self.gyro_dps, self.acc_g, dt, use_accelerometer=not fixes)
+        self._history_t.append(self._imu_time_s)
+        self._history_q.append(self.fusion.q)
         qw, qx, qy, qz = self.fusion.q
         gravity = (2.0 * (qx * qz - qw * qy), 2.0 * (qw * qx + qy * qz), qw * qw - qx * qx - qy * qy + qz * qz)
         a = self.acc_g

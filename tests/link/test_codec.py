@@ -32,6 +32,7 @@ from link.messages import (
     AttitudeTarget,
     BatteryStatus,
     CommandKind,
+    ExternalPose,
     Heartbeat,
     ImuSample,
     MocapPose,
@@ -206,6 +207,21 @@ def test_mocap_pose_fields_and_body_id_in_the_header():
     assert math.isnan(msg.covariance[0])  # "unknown" per the MAVLink definition
     decoded = roundtrip(MocapPose(0.25, 42, (1.0, 2.0, 3.0), (1.0, 0.0, 0.0, 0.0)))
     assert decoded.system_id == 42 and decoded.message.body_id == 42
+
+
+def test_an_external_pose_goes_from_the_ground_station_and_comes_back_as_one():
+    q = (math.cos(0.2), 0.0, 0.0, math.sin(0.2))  # yaw 0.4 rad
+    frame = Codec(255).encode(ExternalPose(1.25, (1.0, 2.0, 3.0), q), target_system=7)
+    msg = pymav_decode(frame)
+    # ATT_POS_MOCAP from the ground station's system id (the vehicle told apart by the link it goes on)
+    assert msg.get_type() == "ATT_POS_MOCAP" and msg.get_srcSystem() == 255
+    assert (msg.x, msg.y, msg.z) == (2.0, 1.0, -3.0) and msg.time_usec == 1_250_000
+    decoded = FrameParser(Codec(1)).feed(frame, True)[0].message
+    assert isinstance(decoded, ExternalPose) and decoded.position_enu_m == (1.0, 2.0, 3.0)
+    assert decoded.attitude_wxyz == pytest.approx(q, abs=1e-6)
+    # the same message from a mocap system (any other source id) stays a MocapPose of that body
+    mocap = FrameParser(Codec(1)).feed(Codec(254).encode(MocapPose(1.25, 7, (1.0, 2.0, 3.0), q)), True)[0]
+    assert isinstance(mocap.message, MocapPose) and mocap.message.body_id == 7
 
 
 def test_each_mocap_body_has_its_own_sequence():
