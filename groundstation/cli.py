@@ -116,6 +116,10 @@ def _emulator_arguments(p: argparse.ArgumentParser) -> None:
                    help="the emulated vehicle's onboard side: ideal (the lab report's geometric law on the true "
                         "state, exact mixer; default) or crazyflie (the Crazyflie's PID stabilizer on its own "
                         "estimate, PWM, battery; fly it with --vehicle-model cf21)")
+    g.add_argument("--vehicle-draw", default="nominal", metavar="PROFILE",
+                   help="the emulated vehicle's variation from its nominal file: nominal (default) or lab (mass, "
+                        "centre of mass, motor thrusts, IMU alignment drawn from the seed; this ground station "
+                        "is not told the draw)")
     g.add_argument("--emulator-arg", dest="emulator_extra", action="append", default=[], metavar="ARG",
                    help="passed to the emulator child, e.g. --emulator-arg=--cut-mocap=8:2 (repeatable)")
 
@@ -174,7 +178,8 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
                               else COMPENSATION_DEFAULT[args.mode]), log_dir=Path(args.log) if args.log else None,
         signing=signing_from_args(args), plan=plan,
         # fly and step know which emulated firmware they started; a ground station alone does not
-        extra_summary={**extra, **({"firmware": args.firmware} if hasattr(args, "firmware") else {})},
+        extra_summary={**extra, **({"firmware": args.firmware, "vehicle_draw": args.vehicle_draw}
+                                   if hasattr(args, "firmware") else {})},
         allow_reset=getattr(args, "reset", False), extpose=_extpose(args))
 
 
@@ -241,7 +246,8 @@ class EmulatorChild:
         self.endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
         cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
                "--radio", args.radio, "--seed", str(args.seed), "--id", args.prefix,
-               "--vehicle-model", args.vehicle_model, "--firmware", args.firmware, "--quiet"]
+               "--vehicle-model", args.vehicle_model, "--firmware", args.firmware,
+               "--vehicle-draw", args.vehicle_draw, "--quiet"]
         if world_path:
             cmd += ["--world", world_path]
         if start is not None:  # the pre-flight-checked start (it may have been moved inside the bounds)

@@ -64,6 +64,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
                    help="the onboard side: ideal (the lab report's geometric law on the true state, exact mixer; "
                         "default) or crazyflie (the Crazyflie's PID stabilizer on its own estimate, PWM, battery)")
+    p.add_argument("--vehicle-draw", default="nominal", metavar="PROFILE",
+                   help="vehicle-to-vehicle variation: nominal (default) or a profile (lab, or a TOML file) from "
+                        "which each vehicle draws its mass, centre of mass, motor thrusts and IMU alignment with "
+                        "the seed; the ground station is not told")
     p.add_argument("--airborne", action="store_true", help="start hovering at the start point instead of on the floor")
     p.add_argument("--start", type=finite_float, nargs=3, metavar=("X", "Y", "Z"),
                    help="start of vehicle 1 (ENU, m); further vehicles 0.5 m apart along +x")
@@ -92,6 +96,7 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
     from model.world import load_world
     from simulator.emulator_config import EmulatorConfig
     from simulator.faults import Outage
+    from simulator.variation import load_variation
 
     if args.radio_ledger is not None and not Path(args.radio_ledger).resolve().parent.is_dir():
         raise UserError(f"--radio-ledger {args.radio_ledger}: no such directory to write it in")
@@ -108,7 +113,8 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         radio=load_radio_profile(args.radio), world=world, vehicles=args.vehicles, seed=args.seed,
         clock=args.clock, physics_rate_hz=args.physics_rate, prefix=args.prefix,
         connection="zenoh", zenoh_options=_zenoh_options(args), start_positions_enu_m=starts,
-        airborne=args.airborne, firmware=args.firmware, signing=signing_from_args(args), duration_s=args.duration,
+        airborne=args.airborne, firmware=args.firmware, variation=load_variation(args.vehicle_draw),
+        signing=signing_from_args(args), duration_s=args.duration,
         lookahead=args.lookahead, keep_ledger=args.radio_ledger is not None,
         radio_cuts=tuple(Outage(at, duration) for at, duration in args.cut_radio),
         mocap_cuts=tuple(Outage(at, duration) for at, duration in args.cut_mocap),

@@ -37,6 +37,7 @@ class EmulatorConfig:
     start_positions_enu_m: list[tuple[float, float, float]] | None = None
     airborne: bool = False
     firmware: str = "ideal"  # the onboard side: "ideal" or "crazyflie" (simulator.vehicle_sim.make_firmware)
+    variation: object | None = None  # simulator.variation.VariationProfile: each vehicle's own draw; None: nominal
     signing: object | None = None
     duration_s: float | None = None  # stop after this much simulation time (None: until stopped)
     lookahead: bool = True  # lockstep: run physics ahead by the uplink's minimum latency (see above)

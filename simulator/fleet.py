@@ -93,7 +93,10 @@ class VehicleNode:
         self.sim = SimVehicle(config.vehicle, np.random.default_rng(sim_seed), world=config.world,
                               mocap_room=config.mocap_room, vehicle_id=vehicle_id,
                               physics_rate_hz=config.physics_rate_hz, initial_position_enu_m=start,
-                              airborne=config.airborne, profile=config.profile, firmware=config.firmware)
+                              airborne=config.airborne, profile=config.profile, firmware=config.firmware,
+                              variation=config.variation)
+        if not self.sim.draw.is_nominal:
+            log.info("vehicle %d draws %s (not told to the ground station)", vehicle_id, self.sim.draw.describe())
         self.uplink_radio = RadioChannel(config.radio, np.random.default_rng(up_seed), name=f"uplink {vehicle_id}",
                                          keep_ledger=config.keep_ledger)
         self.downlink_radio = RadioChannel(config.radio, np.random.default_rng(down_seed),

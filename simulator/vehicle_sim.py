@@ -42,6 +42,8 @@ from simulator.dynamics import Crash, QuadrotorDynamics
 from simulator.firmware import Firmware, FirmwareParams, load_firmware_params
 from simulator.profiling import time_parts
 from simulator.sensors import ImuModel, MocapModel
+from simulator.variation import VariationProfile
+from simulator.variation import draw as draw_variation
 
 _EPS_S = 1e-9  # schedule comparisons tolerate float rounding of k / rate (well under a nanosecond tick)
 NS_PER_S = 1_000_000_000
@@ -78,18 +80,27 @@ class SimVehicle:
                  mocap_room: MocapRoom | None = None, vehicle_id: int = 1, physics_rate_hz: float = 1000.0,
                  initial_position_enu_m=(0.0, 0.0, 0.0),
                  firmware_params: FirmwareParams | str | Path | None = None,
-                 airborne: bool = False, profile: bool = False, firmware: str = "ideal"):
+                 airborne: bool = False, profile: bool = False, firmware: str = "ideal",
+                 variation: VariationProfile | None = None):
         if not (isinstance(physics_rate_hz, (int, float)) and math.isfinite(physics_rate_hz)
                 and physics_rate_hz > 0.0):
             raise UserError(f"physics rate must be a positive number of Hz, got {physics_rate_hz!r}")
         params = (firmware_params if isinstance(firmware_params, FirmwareParams)
                   else load_firmware_params(firmware_params or "firmware"))
-        self.vehicle = vehicle
+        self.vehicle = vehicle  # what the onboard firmware believes (the nominal vehicle file)
         self.vehicle_id = vehicle_id
         self.params = params
         self.world = world
         self.start_enu_m = _checked_start(initial_position_enu_m, world, vehicle.collision_radius_m)
         self._dt_s = 1.0 / physics_rate_hz
+        imu_rng, mocap_rng = rng.spawn(2)
+        # this vehicle's own draw (a third stream: the IMU and mocap streams are the same with or without it)
+        self.draw = draw_variation(variation, rng.spawn(1)[0])
+        self.body = self.draw.apply(vehicle)  # what the physics flies
+        self._motor_gain = tuple(math.sqrt(f) for f in self.draw.motor_thrust_factors)  # thrust ~ w^2
+        self._varied_motors = self._motor_gain != (1.0, 1.0, 1.0, 1.0)
+        self._imu_rows = self.draw.misalignment_rows()
+        self._imu_misaligned = any(v != 0.0 for v in self.draw.imu_misalignment_rad)
         self.dynamics = self._new_dynamics(self.start_enu_m)
         self.reboots = 0  # REBOOT commands carried out
         self.firmware_kind = firmware
@@ -97,7 +108,6 @@ class SimVehicle:
         # The faithful firmware flies on its IMU: a sample due with a firmware cycle is taken first, as the
         # Crazyflie's stabilizer runs on each fresh IMU reading; the ideal one reads the body directly.
         self._imu_before_firmware = hasattr(self.firmware, "take_imu")
-        imu_rng, mocap_rng = rng.spawn(2)
         self.imu = ImuModel(vehicle.imu, imu_rng)
         self.mocap = MocapModel(mocap_room, mocap_rng, vehicle_id) if mocap_room is not None else None
         self._fw = _Schedule(params.commander_rate_hz)
@@ -122,7 +132,7 @@ class SimVehicle:
                        self.timing_s)
             time_parts(self.dynamics, {"step": "physics"}, self.timing_s)
         if airborne:
-            hover = vehicle.hover_rotor_speed_radps
+            hover = self.body.hover_rotor_speed_radps
             if not self.dynamics.on_ground:
                 self.dynamics.set_state(rotor_speeds_radps=(hover,) * 4)
             self.firmware.start_hovering(0.0)
@@ -209,7 +219,7 @@ class SimVehicle:
         return (x, y, self.world.support_height((x, y, z)) if self.world is not None else floor)
 
     def _new_dynamics(self, position: tuple[float, float, float]) -> QuadrotorDynamics:
-        return QuadrotorDynamics(self.vehicle, self.params.contact, world=self.world, dt_s=self._dt_s,
+        return QuadrotorDynamics(self.body, self.params.contact, world=self.world, dt_s=self._dt_s,
                                  position_enu_m=position)
 
     def run(self, duration_s: float) -> None:
@@ -268,7 +278,11 @@ class SimVehicle:
 
     def _tick_firmware(self, t: float) -> None:
         self._fw.advance(t)
-        self.dynamics.command_rotor_speeds(self.firmware.tick(t, self.dynamics))
+        speeds = self.firmware.tick(t, self.dynamics)
+        if self._varied_motors:  # each motor makes its own factor of the thrust the firmware asks for
+            g = self._motor_gain
+            speeds = (speeds[0] * g[0], speeds[1] * g[1], speeds[2] * g[2], speeds[3] * g[3])
+        self.dynamics.command_rotor_speeds(speeds)
         if t + _EPS_S >= self._heartbeat.next_s:
             self._heartbeat.advance(t)
             self._out.append(Output(t, "downlink", self.firmware.heartbeat()))
@@ -284,7 +298,10 @@ class SimVehicle:
         if dv != (0.0, 0.0, 0.0):  # a touchdown since the last sample: its impulse over the sample period
             rate = self.imu.rate_hz
             f = (f[0] + dv[0] * rate, f[1] + dv[1] * rate, f[2] + dv[2] * rate)
-        sample = self.imu.sample(t, f, d.rate_flu_radps)
+        w = d.rate_flu_radps
+        if self._imu_misaligned:  # the IMU measures in its own, slightly rotated axes
+            f, w = _rotated(self._imu_rows, f), _rotated(self._imu_rows, w)
+        sample = self.imu.sample(t, f, w)
         if self._imu_before_firmware:
             self.firmware.take_imu(sample)
         self._out.append(Output(t, "downlink", sample))
@@ -299,6 +316,12 @@ class SimVehicle:
     def _emit_truth(self, t: float) -> None:
         self._truth.advance(t)
         self._out.append(Output(t, "truth", self.dynamics.truth()))
+
+
+def _rotated(rows, v) -> tuple[float, float, float]:
+    r0, r1, r2 = rows
+    return (r0[0] * v[0] + r0[1] * v[1] + r0[2] * v[2], r1[0] * v[0] + r1[1] * v[1] + r1[2] * v[2],
+            r2[0] * v[0] + r2[1] * v[1] + r2[2] * v[2])
 
 
 FIRMWARES = ("ideal", "crazyflie")

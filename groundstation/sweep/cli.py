@@ -41,8 +41,8 @@ from model.world import load_world
 DEFAULT_BASE_PROFILE = "ideal"  # no impairment but the swept ones
 DEFAULT_OUT = "sweep"
 BAR_WIDTH = 30
-SWEEP_OWNED_FLY_OPTIONS = ("--mode", "--radio", "--firmware", "--clock", "--seed", "--json", "--log", "--connect",
-                           "--listen", "--latency-compensation", "--no-latency-compensation")
+SWEEP_OWNED_FLY_OPTIONS = ("--mode", "--radio", "--firmware", "--vehicle-draw", "--clock", "--seed", "--json", "--log",
+                           "--connect", "--listen", "--latency-compensation", "--no-latency-compensation")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,6 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "failed cell")
     p.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
                    help="the emulated vehicle's onboard side for every flight (see `cfstack fly --help`)")
+    p.add_argument("--vehicle-draw", default="nominal", metavar="PROFILE",
+                   help="each flight's vehicle variation (see `cfstack fly --help`); drawn from the flight's seed")
     p.add_argument("--resume", action="store_true", help="skip the cells already in OUT/sweep.csv")
     return p
 
@@ -145,7 +147,7 @@ def parse_options(argv: Sequence[str]) -> SweepOptions:
         losses_pct=parse_number_list(args.loss, "--loss", maximum=PCT_PER_UNIT),
         jobs=args.jobs, out=Path(args.out), seed=args.seed, radio_base=args.radio,
         extra=extra, latency_compensation=args.latency_compensation,
-        timeout_s=args.timeout, resume=args.resume, firmware=args.firmware)
+        timeout_s=args.timeout, resume=args.resume, firmware=args.firmware, vehicle_draw=args.vehicle_draw)
 
 
 class ProgressBar:

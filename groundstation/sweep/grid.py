@@ -36,12 +36,14 @@ class SweepOptions:
     timeout_s: float = DEFAULT_CELL_TIMEOUT_S
     resume: bool = False
     firmware: str = "ideal"  # the emulated vehicle's onboard side (fly --firmware)
+    vehicle_draw: str = "nominal"  # the emulated vehicle's variation profile (fly --vehicle-draw)
 
     def settings(self) -> dict:
         """What makes two sweeps' cells comparable (written to sweep.json, checked by --resume)."""
         return {"world": str(Path(self.world).resolve()) if self.world else None, "seed": self.seed,
                 "radio_base": self.radio_base, "extra": list(self.extra),
-                "latency_compensation": self.latency_compensation, "firmware": self.firmware}
+                "latency_compensation": self.latency_compensation, "firmware": self.firmware,
+                "vehicle_draw": self.vehicle_draw}
 
 
 def _num(x: float) -> str:

@@ -75,7 +75,8 @@ def fly_argv(opts: SweepOptions, cell: Cell, profile: Path, log_dir: Path) -> li
     if opts.world:
         argv.append(str(Path(opts.world).resolve()))
     argv += ["--mode", cell.mode, "--radio", str(profile.resolve()), "--clock", "lockstep",
-             "--seed", str(opts.seed), "--firmware", opts.firmware, "--json", "--log", str(log_dir.resolve())]
+             "--seed", str(opts.seed), "--firmware", opts.firmware,
+             "--vehicle-draw", opts.vehicle_draw, "--json", "--log", str(log_dir.resolve())]
     if opts.latency_compensation is not None:
         argv.append("--latency-compensation" if opts.latency_compensation else "--no-latency-compensation")
     return argv + list(opts.extra)
