@@ -17,9 +17,7 @@ the child is another program.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
-import math
 import os
 import subprocess
 import sys
@@ -33,8 +31,7 @@ from groundstation.child_process import die_with_parent
 from groundstation.planned import plan_track
 from groundstation.preflight import checked_world
 from groundstation.session import DEFAULT_RATE_HZ, SessionOptions, dump_json, human_summary, run_session
-from groundstation.step_analysis import analyze_step, plot_step
-from groundstation.trajectories.basic import Step, load_trajectory_params, make_builtin
+from groundstation.trajectories.basic import make_builtin
 from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.base import free_loopback_port
@@ -324,68 +321,3 @@ def _fly_with_emulator(args, world: World | None, airborne: bool, opts: SessionO
             for line in child.stop():
                 if args.verbose:
                     print(line, file=sys.stderr)
-
-
-def _step_size(text: str) -> float:
-    value = float_in(-math.inf, math.inf)(text)
-    if value == 0.0:
-        raise argparse.ArgumentTypeError("must be a non-zero number of metres")
-    return value
-
-
-def step_command(argv: list[str]) -> int:
-    """The lab report's tuning experiment: hover, step along one axis, measure the response."""
-    defaults = load_trajectory_params().step
-    p = OneLineParser(prog="cfstack step", description=step_command.__doc__)
-    g = p.add_argument_group("step")
-    g.add_argument("--axis", choices=("x", "y", "z"), default=defaults.axis)
-    g.add_argument("--size", type=_step_size, default=defaults.size_m, help="step size, m (non-zero)")
-    g.add_argument("--hold", type=non_negative_float, default=defaults.hold_s,
-                   help="time to hold after the step, s")
-    _flight_arguments(p)
-    _emulator_arguments(p)
-    args = _parsed(p, argv)
-    start = np.array([0.0, 0.0, load_trajectory_params().hover.height_m])
-    track = Step(start, args.axis, args.size, hold_s=args.hold, step_at_s=defaults.step_at_s)
-    goal = track.end_m
-    opts = _options(args, None, track, goal, {"trajectory": f"step-{args.axis}"}, None, args.clock,
-                    zenoh_options_from_args(args))
-    result = _fly_with_emulator(args, None, False, opts)
-    if "track" not in result.record.phase:
-        print(human_summary(result.summary), file=sys.stderr)
-        raise FlightFailed(f"the flight ended ({result.summary['result']}) before the step was flown")
-    metrics, png = analyse_step_flight(result, track, args.axis)
-    summary = result.summary | {"step": metrics, "step_plot": str(png)}
-    if args.json:
-        print(dump_json(summary))
-    else:
-        print(human_summary(result.summary))
-        print(step_report(metrics, png))
-    return 0 if result.summary["reached_goal"] else 1
-
-
-def analyse_step_flight(result, track: Step, axis: str) -> tuple[dict, Path]:
-    """Step metrics of the flown axis (truth when the link has it, else the estimate) and Fig. 1's plot."""
-    rec = result.record
-    index = "xyz".index(axis)
-    track_start = next(t for t, phase in zip(rec.t, rec.phase, strict=True) if phase == "track")
-    rows = [(t, truth if truth is not None else est)
-            for t, phase, truth, est in zip(rec.t, rec.phase, rec.truth, rec.est, strict=True)
-            if phase in ("track", "hover") and (truth is not None or est is not None)]
-    t = np.array([r[0] for r in rows]) - track_start
-    y = np.array([r[1][index] for r in rows])
-    metrics = analyze_step(t, y, track.step_at_s, float(track.start_m[index]), float(track.end_m[index]))
-    png = Path(result.summary["log_dir"]) / f"step_{axis}.png"
-    plot_step(t, y, metrics, png, axis_name=axis)
-    return dataclasses.asdict(metrics), png
-
-
-def step_report(m: dict, png: Path) -> str:
-    return "\n".join([
-        f"step {m['initial_m']:.3f} -> {m['target_m']:.3f} m at t = {m['step_time_s']:.2f} s",
-        f"steady-state error {m['steady_state_error_m']:.4f} m, overshoot {m['overshoot_m']:.4f} m "
-        f"({m['percent_overshoot']:.1f} %), damping ratio {m['damping_ratio']:.3f}",
-        f"rise time {m['rise_time_s']:.3f} s (10-90 %: {m['rise_time_10_90_s']:.3f} s), "
-        f"settling time {m['settling_time_s']:.3f} s (band +-{m['settling_band_m']:.3f} m)",
-        f"plot: {png}",
-    ])

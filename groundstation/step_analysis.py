@@ -154,18 +154,21 @@ def plot_step(t_s: np.ndarray, y_m: np.ndarray, metrics: StepMetrics, path: str 
         ax.axhspan(m.final_value_m - m.settling_band_m, m.final_value_m + m.settling_band_m,
                    color="tab:green", alpha=0.15, label=f"settling band \u00b1{m.settling_band_m:.3f} m")
         if math.isfinite(m.percent_overshoot) and m.overshoot_m > 0:
-            t_peak = m.step_time_s + m.peak_time_s
-            ax.annotate(f"overshoot {m.overshoot_m:.3f} m (PO {m.percent_overshoot:.1f} %, "
-                        f"zeta {m.damping_ratio:.3f})", xy=(t_peak, m.peak_m),
-                        xytext=(40, -12), textcoords="offset points", arrowprops={"arrowstyle": "->"})
-            ax.plot([t_peak], [m.peak_m], "o", color="tab:blue")
-        for value, label, color in ((m.rise_time_s, "rise", "tab:orange"),
+            ax.plot([m.step_time_s + m.peak_time_s], [m.peak_m], "o", color="tab:blue", label="peak")
+        for value, label, color in ((m.rise_time_s, "rise (first reach)", "tab:orange"),
                                     (m.settling_time_s, "settling", "tab:red")):
             if math.isfinite(value):
                 ax.axvline(m.step_time_s + value, color=color, linestyle=":",
                            label=f"{label} time {value:.2f} s after the step")
-        ax.annotate(f"steady-state error {m.steady_state_error_m:.3f} m", xy=(t[-1], m.final_value_m),
-                    xytext=(-10, -25), textcoords="offset points", ha="right")
+        # The figures in a box inside the axes (top left, where a step up leaves room), never beside a point
+        # near the edge, where they would run off the plot.
+        lines = [f"overshoot {m.overshoot_m:.3f} m (PO {m.percent_overshoot:.1f} %)",
+                 f"damping ratio {m.damping_ratio:.3f}" if math.isfinite(m.damping_ratio) else "no overshoot",
+                 f"rise (first reach) {m.rise_time_s:.2f} s, 10-90 % {m.rise_time_10_90_s:.2f} s",
+                 f"settling {m.settling_time_s:.2f} s", f"steady-state error {m.steady_state_error_m:.3f} m"]
+        rising = m.target_m >= m.initial_m
+        ax.text(0.02, 0.97 if rising else 0.03, "\n".join(lines), transform=ax.transAxes, fontsize="small",
+                va="top" if rising else "bottom", ha="left", bbox={"boxstyle": "round", "fc": "white", "alpha": 0.85})
         ax.set_xlabel("time (s)")
         ax.set_ylabel(f"{axis_name} position (m)")
         ax.set_title(title or f"Step response in {axis_name}")

@@ -64,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
                    help="the onboard side: ideal (the lab report's geometric law on the true state, exact mixer; "
                         "default) or crazyflie (the Crazyflie's PID stabilizer on its own estimate, PWM, battery)")
+    p.add_argument("--ideal", dest="ideal_parts", action="append", default=[], choices=("estimator", "battery"),
+                   help="ablation studies only: make one part of the crazyflie firmware ideal (estimator: fly on "
+                        "the true attitude; battery: full voltage, no sag) (repeatable)")
     p.add_argument("--vehicle-draw", default="nominal", metavar="PROFILE",
                    help="vehicle-to-vehicle variation: nominal (default) or a profile (lab, or a TOML file) from "
                         "which each vehicle draws its mass, centre of mass, motor thrusts and IMU alignment with "
@@ -114,6 +117,7 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         clock=args.clock, physics_rate_hz=args.physics_rate, prefix=args.prefix,
         connection="zenoh", zenoh_options=_zenoh_options(args), start_positions_enu_m=starts,
         airborne=args.airborne, firmware=args.firmware, variation=load_variation(args.vehicle_draw),
+        ideal_parts=tuple(args.ideal_parts),
         signing=signing_from_args(args), duration_s=args.duration,
         lookahead=args.lookahead, keep_ledger=args.radio_ledger is not None,
         radio_cuts=tuple(Outage(at, duration) for at, duration in args.cut_radio),

@@ -37,6 +37,7 @@ class EmulatorConfig:
     start_positions_enu_m: list[tuple[float, float, float]] | None = None
     airborne: bool = False
     firmware: str = "ideal"  # the onboard side: "ideal" or "crazyflie" (simulator.vehicle_sim.make_firmware)
+    ideal_parts: tuple[str, ...] = ()  # ablation: faithful-firmware parts made ideal (estimator, battery)
     variation: object | None = None  # simulator.variation.VariationProfile: each vehicle's own draw; None: nominal
     signing: object | None = None
     duration_s: float | None = None  # stop after this much simulation time (None: until stopped)

@@ -94,7 +94,7 @@ class VehicleNode:
                               mocap_room=config.mocap_room, vehicle_id=vehicle_id,
                               physics_rate_hz=config.physics_rate_hz, initial_position_enu_m=start,
                               airborne=config.airborne, profile=config.profile, firmware=config.firmware,
-                              variation=config.variation)
+                              variation=config.variation, ideal_parts=config.ideal_parts)
         if not self.sim.draw.is_nominal:
             log.info("vehicle %d draws %s (not told to the ground station)", vehicle_id, self.sim.draw.describe())
         self.uplink_radio = RadioChannel(config.radio, np.random.default_rng(up_seed), name=f"uplink {vehicle_id}",

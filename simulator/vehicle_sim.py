@@ -81,7 +81,7 @@ class SimVehicle:
                  initial_position_enu_m=(0.0, 0.0, 0.0),
                  firmware_params: FirmwareParams | str | Path | None = None,
                  airborne: bool = False, profile: bool = False, firmware: str = "ideal",
-                 variation: VariationProfile | None = None):
+                 variation: VariationProfile | None = None, ideal_parts: tuple[str, ...] = ()):
         if not (isinstance(physics_rate_hz, (int, float)) and math.isfinite(physics_rate_hz)
                 and physics_rate_hz > 0.0):
             raise UserError(f"physics rate must be a positive number of Hz, got {physics_rate_hz!r}")
@@ -104,7 +104,8 @@ class SimVehicle:
         self.dynamics = self._new_dynamics(self.start_enu_m)
         self.reboots = 0  # REBOOT commands carried out
         self.firmware_kind = firmware
-        self.firmware = make_firmware(firmware, vehicle, params)
+        self.ideal_parts = tuple(ideal_parts)
+        self.firmware = make_firmware(firmware, vehicle, params, self.ideal_parts)
         # The faithful firmware flies on its IMU: a sample due with a firmware cycle is taken first, as the
         # Crazyflie's stabilizer runs on each fresh IMU reading; the ideal one reads the body directly.
         self._imu_before_firmware = hasattr(self.firmware, "take_imu")
@@ -194,7 +195,7 @@ class SimVehicle:
         old = self.dynamics
         self.dynamics = self._new_dynamics(self._ground_start())
         self.dynamics.continue_clock(old.steps)
-        self.firmware = make_firmware(self.firmware_kind, self.vehicle, self.params)
+        self.firmware = make_firmware(self.firmware_kind, self.vehicle, self.params, self.ideal_parts)
         self._boot_calibration()
         self.reboots += 1
         if self.timing_s:  # profiled: time the new body's physics too
@@ -327,15 +328,16 @@ def _rotated(rows, v) -> tuple[float, float, float]:
 FIRMWARES = ("ideal", "crazyflie")
 
 
-def make_firmware(kind: str, vehicle: Vehicle, params: FirmwareParams) -> Firmware:
+def make_firmware(kind: str, vehicle: Vehicle, params: FirmwareParams, ideal_parts: tuple[str, ...] = ()) -> Firmware:
     """The onboard side: "ideal" (the lab report's geometric law on the true state, exact mixer) or
-    "crazyflie" (the Crazyflie's own stabilizer on its own estimate: simulator.crazyflie)."""
+    "crazyflie" (the Crazyflie's own stabilizer on its own estimate: simulator.crazyflie), with the parts
+    an ablation study makes ideal (crazyflie only)."""
     if kind == "ideal":
         return Firmware(vehicle, params)
     if kind == "crazyflie":
         from simulator.crazyflie.stabilizer import CrazyflieFirmware
 
-        return CrazyflieFirmware(vehicle, params)
+        return CrazyflieFirmware(vehicle, params, ideal=ideal_parts)
     raise UserError(f"firmware: '{kind}' is not one of {', '.join(FIRMWARES)}")
 
 

@@ -122,9 +122,17 @@ def _deadband(value: float, threshold: float) -> float:
     return value - threshold if value > 0.0 else value + threshold
 
 
+ABLATIONS = ("estimator", "battery")  # parts an ablation study may make ideal (`cfstack step --ablate`)
+
+
 class CrazyflieFirmware(Firmware):
-    def __init__(self, vehicle: Vehicle, params: FirmwareParams, cf: CrazyflieParams | None = None):
+    def __init__(self, vehicle: Vehicle, params: FirmwareParams, cf: CrazyflieParams | None = None,
+                 ideal: tuple[str, ...] = ()):
         super().__init__(vehicle, params)
+        # Ablation only (never a default): "estimator" flies on the body's true attitude and rates instead of
+        # the onboard estimate; "battery" holds the battery at full voltage without sag, measured exactly.
+        self.ideal = frozenset(ideal)
+        self._body: BodyState | None = None
         cf = cf or load_crazyflie_params()
         self.cf = cf
         dt = 1.0 / cf.attitude_rate_hz
@@ -248,7 +256,9 @@ class CrazyflieFirmware(Firmware):
 
     # --- the loop ----------------------------------------------------------------------------------
     def tick(self, t_s: float, body: BodyState) -> tuple[float, ...]:
-        """One stabilizer pass; rotor speeds (rad/s) whose k_T w^2 are the motor forces."""
+        """One stabilizer pass; rotor speeds (rad/s) whose k_T w^2 are the motor forces. The body is read for
+        the crash and the floor only (and by the estimator ablation)."""
+        self._body = body
         if body.crash is not None:
             self.armed = False
             self.mode = VehicleMode.CRASHED
@@ -293,11 +303,23 @@ class CrazyflieFirmware(Firmware):
         return min(max(thrust_n * self._pwm_per_n, 0.0), float(self.cf.curve.pwm_max))
 
     def _through_pid(self, sp: Setpoint) -> tuple[int, int, int, int]:
+        if "estimator" in self.ideal:
+            return legacy(self.controller.update(sp, *self._true_attitude()))
         return legacy(self.controller.update(sp, self.estimate_rpy_deg, self.gyro_dps))
+
+    def _true_attitude(self):
+        """Ablation: the body's true attitude (legacy roll, pitch, yaw deg) and rates (deg/s)."""
+        roll, pitch, yaw = euler_zyx_of(self._body.attitude_wxyz)
+        w = self._body.rate_flu_radps
+        return ((roll * DEG_PER_RAD, -pitch * DEG_PER_RAD, yaw * DEG_PER_RAD),
+                (w[0] * DEG_PER_RAD, w[1] * DEG_PER_RAD, w[2] * DEG_PER_RAD))
 
     def _drive(self, uncapped) -> tuple[float, ...]:
         """Battery compensation, the cap, then the motors on the battery's true voltage."""
         cf, curve = self.cf, self.cf.curve
+        if "battery" in self.ideal:
+            self.battery.voltage_v = self.battery.full_v
+            self.supply_v = self.battery.full_v
         self.supply_v += self._supply_b * (self.battery.voltage_v - self.supply_v)
         compensated = tuple(int(curve.compensate(m, self.supply_v)) for m in uncapped)
         pwm = cap(compensated, curve.pwm_max, cf.idle_thrust_pwm)
@@ -305,7 +327,8 @@ class CrazyflieFirmware(Firmware):
         v = self.battery.voltage_v
         forces = tuple(curve.thrust_n(r, v) for r in pwm)
         self.motor_forces_n = forces
-        self.battery.step(forces, self.tick_period_s)
+        if "battery" not in self.ideal:
+            self.battery.step(forces, self.tick_period_s)
         k = self._k_thrust
         return tuple(math.sqrt(f / k) for f in forces) if any(forces) else MOTORS_OFF
 

@@ -136,3 +136,25 @@ def test_plot_writes_a_png(tmp_path):
     path = plot_step(t, y, m, tmp_path / "step.png", axis_name="y")
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+@pytest.mark.parametrize("size", [0.5, -0.5])
+def test_the_plots_figures_stay_inside_the_axes(tmp_path, monkeypatch, size):
+    import matplotlib.pyplot as plt
+
+    kept = []
+    monkeypatch.setattr(plt, "close", kept.append)  # keep the figure to measure where its texts landed
+    t, y = record(0.34, 3.0, 0.0, size * 0.91, 1.5)
+    m = analyze_step(t, y, 1.5, 0.0, size)
+    plot_step(t, y, m, tmp_path / "step.png", axis_name="y")
+    fig = kept[0]
+    ax = fig.axes[0]
+    renderer = fig.canvas.get_renderer()
+    box = ax.get_window_extent(renderer)
+    texts = ax.texts
+    assert texts and all(text.get_window_extent(renderer).fully_overlaps(box) for text in texts)
+    inside = [box.contains(*corner) for text in texts for corner in text.get_window_extent(renderer).corners()]
+    assert all(inside)
+    assert "rise (first reach)" in texts[0].get_text() and "10-90 %" in texts[0].get_text()
+    monkeypatch.undo()
+    plt.close(fig)
