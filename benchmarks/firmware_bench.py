@@ -1,0 +1,127 @@
+"""Benchmark: what the faithful firmware (--firmware crazyflie) costs against the ideal one, in the same run.
+
+Takes in: --seconds of simulated hover per in-process run, --repeats (interleaved), --skip-flights.
+Gives out (printed):
+1. in-process, no radio: microseconds per physics step (1 kHz) of one cf21 vehicle hovering, ideal and
+   faithful firmware interleaved, in moments mode (ThrustMoment setpoints at 500 Hz) and attitude mode
+   (AttitudeTarget at 100 Hz plus the mocap pose as ExternalPose at 100 Hz), with the faithful/ideal ratio
+   (median of the repeats);
+2. lockstep flights through the link (`cfstack fly`, crazyradio profile: the built-in circle, and the
+   test_lab_1 maze from ../shared/worlds when present): real-time factor of the flight loop per mode and
+   firmware, and the ratio. Issue 15's floor: moments mode at 500 Hz at least 5x real time with the faithful firmware.
+
+The setpoints come from the truth (a stand-in for the ground station: this measures the vehicle, not a
+controller). Run: python benchmarks/firmware_bench.py [--seconds 10] [--repeats 3] [--skip-flights]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_paths import SHARED_WORLDS
+
+from link.messages import AttitudeTarget, ExternalPose, ThrustMoment
+from model.vehicle import load_mocap_room, load_vehicle
+from simulator.vehicle_sim import SimVehicle
+
+VEHICLE = "cf21"
+FIRMWARES = ("ideal", "crazyflie")
+MAZE = SHARED_WORLDS / "test_lab_1.json"
+TARGET_MOMENTS_RTF = 5.0
+
+
+def hover_in_process(firmware: str, mode: str, seconds: float, seed: int) -> float:
+    """Microseconds per physics step of `seconds` of hover (setpoints and poses from the truth)."""
+    vehicle = load_vehicle(VEHICLE)
+    sim = SimVehicle(vehicle, np.random.default_rng(seed), mocap_room=load_mocap_room("vicon"),
+                     initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True, firmware=firmware)
+    steps_per_setpoint = 2 if mode == "moments" else 10
+    level = (1.0, 0.0, 0.0, 0.0)
+    total_steps = round(seconds * 1000.0)
+    start = time.perf_counter()
+    for k in range(total_steps):
+        if k % steps_per_setpoint == 0:
+            t = sim.t_s
+            if mode == "moments":
+                sim.handle_uplink(ThrustMoment(t, vehicle.weight_n, (0.0, 0.0, 0.0)), t)
+            else:
+                truth = sim.truth
+                sim.handle_uplink(ExternalPose(t, truth.position_enu_m, truth.attitude_wxyz), t)
+                sim.handle_uplink(AttitudeTarget(t, vehicle.weight_n, level), t)
+        sim.step()
+        sim.pop_outputs()
+    return (time.perf_counter() - start) / total_steps * 1e6
+
+
+def in_process_table(seconds: float, repeats: int) -> None:
+    print(f"1. In-process hover, one {VEHICLE} vehicle, {seconds:g} s simulated per run, {repeats} interleaved "
+          "repeats (median)")
+    print(f"{'mode':<10} {'ideal us/step':>14} {'faithful us/step':>17} {'faithful/ideal':>15}")
+    for mode in ("moments", "attitude"):
+        times = {f: [] for f in FIRMWARES}
+        for r in range(repeats):
+            for firmware in FIRMWARES:
+                times[firmware].append(hover_in_process(firmware, mode, seconds, seed=r))
+        ideal, faithful = (statistics.median(times[f]) for f in FIRMWARES)
+        print(f"{mode:<10} {ideal:>14.1f} {faithful:>17.1f} {faithful / ideal:>15.2f}")
+
+
+def flight(folder: Path, what: str, mode: str, firmware: str) -> dict:
+    world = [str(MAZE)] if what == "maze" else ["--trajectory", "circle"]
+    log = folder / f"{what}_{mode}_{firmware}"
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", *world, "--mode", mode, "--firmware", firmware,
+                          "--vehicle-model", VEHICLE, "--clock", "lockstep", "--seed", "1", "--json", "--log",
+                          str(log)], capture_output=True, text=True, timeout=900, stdin=subprocess.DEVNULL)
+    if not run.stdout.strip():
+        raise SystemExit(f"firmware_bench: the {mode}/{firmware} flight printed no summary: "
+                         f"{run.stderr.strip().splitlines()[-1:]}")
+    return json.loads(run.stdout)
+
+
+def flights_table() -> None:
+    flights = ["circle"] + (["maze"] if MAZE.is_file() else [])
+    absent = "" if MAZE.is_file() else f" ({MAZE} absent: no maze flights)"
+    print(f"\n2. Lockstep flights through the link (crazyradio, {VEHICLE}): flight-loop real-time factor "
+          f"(simulated s per wall s of the loop){absent}")
+    print(f"{'flight':<8} {'mode':<10} {'ideal x':>9} {'faithful x':>11} {'faithful/ideal':>15} "
+          f"{'faithful result':>16}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for what in flights:
+            for mode in ("moments", "attitude"):
+                rtf, results = {}, {}
+                for firmware in FIRMWARES:
+                    s = flight(Path(tmp), what, mode, firmware)
+                    rtf[firmware] = s["timing"]["real_time_factor"]
+                    results[firmware] = s["result"]
+                    print(f"  [{what} {mode} {firmware}] {results[firmware]}, {rtf[firmware]:.1f}x", file=sys.stderr,
+                          flush=True)
+                ratio = rtf["crazyflie"] / rtf["ideal"]
+                print(f"{what:<8} {mode:<10} {rtf['ideal']:>9.1f} {rtf['crazyflie']:>11.1f} {ratio:>15.2f} "
+                      f"{results['crazyflie']:>16}")
+                if mode == "moments":
+                    verdict = "meets" if rtf["crazyflie"] >= TARGET_MOMENTS_RTF else "MISSES"
+                    print(f"{'':<19} faithful moments mode {verdict} the {TARGET_MOMENTS_RTF:g}x floor")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--skip-flights", action="store_true")
+    args = p.parse_args()
+    in_process_table(args.seconds, args.repeats)
+    if not args.skip_flights:
+        flights_table()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
