@@ -71,6 +71,7 @@ class FlightRecord:
     ref: list[np.ndarray] = field(default_factory=list)
     est: list[np.ndarray] = field(default_factory=list)
     est_vel: list[np.ndarray] = field(default_factory=list)
+    est_sigma: list[tuple | None] = field(default_factory=list)  # position (m) and velocity (m/s) std devs
     truth: list[np.ndarray | None] = field(default_factory=list)
     truth_vel: list[np.ndarray | None] = field(default_factory=list)
     truth_att: list[np.ndarray | None] = field(default_factory=list)  # quaternion (w, x, y, z)
@@ -317,13 +318,14 @@ class FlightLoop:
                      None if out is None else bool(out.saturated), view_age,
                      None if est is None else est.healthy, stats.tx_frames,
                      stats.rx_frames, stats.sequences.lost, rtt, tick_ms,
-                     None if est is None else est.time_s)
+                     None if est is None else est.time_s, None if truth is None else truth.time_s)
         record = self.record  # tuples, stacked into arrays once at the end (session.grade)
         record.t.append(now)
         record.phase.append(step.phase.value)
         record.ref.append(ref and ref[:3])
         record.est.append(est_vals and est_vals[:3])
         record.est_vel.append(est_vals and est_vals[3:6])
+        record.est_sigma.append(sigma and sigma[:6])
         record.truth.append(truth_vals and truth_vals[:3])
         record.truth_vel.append(truth_vals and truth_vals[3:6])
         record.truth_att.append(truth_vals and truth_vals[6:10])

@@ -42,6 +42,8 @@ STATE_COLUMNS: tuple[str, ...] = (
     "mocap_age_s", "est_healthy", "uplink_sent", "downlink_received", "downlink_lost", "rtt_ms",
     "tick_time_ms",
 )
+# Written by newer ground stations; NaN when a log predates them.
+OPTIONAL_COLUMNS: tuple[str, ...] = ("est_time_s", "truth_time_s")
 TEXT_COLUMNS = frozenset({"phase"})
 NUMERIC_COLUMNS: tuple[str, ...] = tuple(c for c in STATE_COLUMNS if c not in TEXT_COLUMNS)
 
@@ -136,6 +138,10 @@ def read_states(path: str | Path) -> tuple[np.ndarray, np.ndarray, dict[str, np.
         raise UserError(f"{path}: no data rows after the header")
     table = np.array(rows, dtype=str)
     columns = {name: _numeric_column(table[:, index[name]], name, path) for name in NUMERIC_COLUMNS}
+    for name in OPTIONAL_COLUMNS:
+        where = header.index(name) if name in header else None
+        columns[name] = (np.full(len(rows), np.nan) if where is None
+                         else _numeric_column(table[:, where], name, path))
     t_s = columns.pop("t_s")
     if not np.isfinite(t_s).all():
         bad = int(np.flatnonzero(~np.isfinite(t_s))[0])

@@ -206,11 +206,29 @@ def _path_length(points: np.ndarray) -> float | None:
 
 
 def _estimator_errors(rec, phase, est, est_vel) -> dict:
+    """RMS errors and consistency, all against the truth at the estimate's own sample time (airborne).
+
+    Consistency per axis (x, y, z): the mean normalised squared error (error / sigma)^2, which is 1 for a
+    consistent filter, and the fraction of samples inside +-3 sigma (0.997 for a consistent Gaussian error).
+    """
     airborne = np.isin(phase, ("takeoff", "settle", "track", "hover", "land", "failsafe_hold", "failsafe_descent"))
     truth_at_est, truth_vel_at_est = stack3(rec.truth_at_est), stack3(rec.truth_vel_at_est)
-    valid = airborne & np.isfinite(truth_at_est).all(axis=1) & np.isfinite(est).all(axis=1)
-    return {"rms_position_error_m": rms(np.linalg.norm(est[valid] - truth_at_est[valid], axis=1)),
-            "rms_velocity_error_mps": rms(np.linalg.norm(est_vel[valid] - truth_vel_at_est[valid], axis=1))}
+    sigma = stack3(rec.est_sigma, width=6)
+    valid = (airborne & np.isfinite(truth_at_est).all(axis=1) & np.isfinite(est).all(axis=1)
+             & np.isfinite(sigma).all(axis=1) & (sigma > 0.0).all(axis=1))
+    position_error = est[valid] - truth_at_est[valid]
+    velocity_error = est_vel[valid] - truth_vel_at_est[valid]
+    z_position, z_velocity = position_error / sigma[valid, :3], velocity_error / sigma[valid, 3:]
+    return {"rms_position_error_m": rms(np.linalg.norm(position_error, axis=1)),
+            "rms_velocity_error_mps": rms(np.linalg.norm(velocity_error, axis=1)),
+            "position_nees_per_axis": _mean_rows(z_position**2),
+            "velocity_nees_per_axis": _mean_rows(z_velocity**2),
+            "position_inside_3sigma": _mean_rows(np.abs(z_position) <= 3.0),
+            "velocity_inside_3sigma": _mean_rows(np.abs(z_velocity) <= 3.0)}
+
+
+def _mean_rows(values: np.ndarray) -> list[float] | None:
+    return [float(v) for v in np.mean(values, axis=0)] if len(values) else None
 
 
 def _link_summary(loop: FlightLoop) -> dict:
@@ -279,8 +297,11 @@ def human_summary(summary: dict) -> str:
                      f"{_yes(grade['no_collision'])}{course_time})")
     est = summary["estimator"]
     if est.get("rms_position_error_m") is not None:
+        inside = est.get("position_inside_3sigma")
+        consistency = ("" if not inside else ", position inside 3 sigma x/y/z "
+                       + "/".join(f"{100 * v:.1f}" for v in inside) + " %")
         lines.append(f"estimator rms error {est['rms_position_error_m'] * 1e3:.2f} mm, "
-                     f"{est['rms_velocity_error_mps'] * 1e2:.2f} cm/s")
+                     f"{est['rms_velocity_error_mps'] * 1e2:.2f} cm/s{consistency}")
     lines.append(_link_line(summary["link"]))
     lines.append(f"{summary['sim_time_s']:.2f} s simulated in {summary['wall_time_s']:.2f} s wall"
                  f"{_loop_speed(summary.get('timing', {}))}; logs in {summary['log_dir']}")
