@@ -47,7 +47,7 @@ DEFAULT_PLANNED = "minsnap"
 # From the stability map (README): in moments mode compensation is as good at zero latency and keeps the
 # loop stable to 100 ms instead of 10 ms; in attitude mode it wins from 10 ms on but costs ~2 mm of peak
 # tracking error at zero latency, so there it stays an option.
-COMPENSATION_DEFAULT = {"moments": True, "attitude": False}
+COMPENSATION_DEFAULT = {"moments": True, "attitude": False, "position": False}
 # The highest control rate: the emulator's physics step (1 kHz); faster commands would share a step.
 MAX_RATE_HZ = 1000.0
 EMULATOR_START_CHECK_S = 0.05  # how long `fly` gives its emulator child to fail on its own options
@@ -56,12 +56,14 @@ EMULATOR_START_CHECK_S = 0.05  # how long `fly` gives its emulator child to fail
 def _flight_arguments(p: argparse.ArgumentParser) -> None:
     """How any session flies: mode, rate, vehicle, gains, logs (fly, step and groundstation)."""
     g = p.add_argument_group("flight")
-    g.add_argument("--mode", choices=("moments", "attitude"), default="moments",
-                   help="command mode: thrust+moments (500 Hz default) or thrust+attitude (100 Hz default)")
+    g.add_argument("--mode", choices=("moments", "attitude", "position"), default="moments",
+                   help="command mode: thrust+moments (500 Hz default), thrust+attitude (100 Hz default), or "
+                        "position (100 Hz default): the reference's position, velocity and yaw, flown by the "
+                        "vehicle's onboard position controller (--firmware crazyflie; it needs --extpose)")
     g.add_argument("--rate", type=float_in(0.0, MAX_RATE_HZ, "Hz"), metavar="HZ",
                    help=f"control rate, Hz, above 0 and at most {MAX_RATE_HZ:g} "
                         f"(default {DEFAULT_RATE_HZ['moments']:g} in moments mode, "
-                        f"{DEFAULT_RATE_HZ['attitude']:g} in attitude mode)")
+                        f"{DEFAULT_RATE_HZ['attitude']:g} in attitude and position modes)")
     g.add_argument("--log", help="log folder (default: a new timestamped folder under ./flights/)")
     g.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     g.add_argument("--vehicle", type=whole_number(1, "a vehicle id", MAX_VEHICLE_ID), default=1,
@@ -167,6 +169,12 @@ def _track(args, world: World | None):
 
 
 def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> SessionOptions:
+    if args.mode == "position" and args.latency_compensation:
+        raise UserError("argument --latency-compensation: not with --mode position (the vehicle's own position "
+                        "controller flies the reference; there is no ground-station command to predict)")
+    if args.mode == "position" and getattr(args, "firmware", "crazyflie") != "crazyflie":
+        raise UserError("argument --mode position: needs --firmware crazyflie (the ideal vehicle has no onboard "
+                        "position controller)")
     return SessionOptions(
         track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
         connection="zenoh", zenoh_options=zopts, prefix=args.prefix, vehicle_id=args.vehicle,

@@ -30,6 +30,7 @@ from link.messages import (
     Heartbeat,
     ImuSample,
     MocapPose,
+    PositionTarget,
     RadioStatus,
     ThrustMoment,
     TimeSync,
@@ -202,7 +203,14 @@ class FlightLoop:
         """One-way uplink latency: half the median of the recent TIMESYNC round trips (None before any)."""
         return self._uplink_latency_s
 
-    def control(self, now_s: float, step) -> tuple:
+    def control(self, now_s: float, step):
+        """Send this tick's setpoint; the ground station's controller output (None in position mode, where
+        the vehicle's onboard position controller flies the reference itself)."""
+        if self.mode == "position":
+            ref = step.reference
+            self.link.send(PositionTarget(now_s, tuple(float(v) for v in ref.position_m),
+                                          tuple(float(v) for v in ref.velocity_mps), float(ref.yaw_rad)))
+            return None
         est = self.estimate
         reference = step.reference
         latency = self.uplink_latency_s() if self.compensator is not None else None

@@ -43,7 +43,7 @@ from model.world import World
 
 log = logging.getLogger("cfstack.groundstation")
 
-DEFAULT_RATE_HZ = {"moments": 500.0, "attitude": 100.0}
+DEFAULT_RATE_HZ = {"moments": 500.0, "attitude": 100.0, "position": 100.0}  # position: the firmware's POSITION_RATE
 # The course tests np.array_equal(start, end): a closed trajectory's end may differ from its start by rounding.
 COURSE_SAME_POINT_M = 1e-9
 

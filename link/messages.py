@@ -37,6 +37,17 @@ class AttitudeTarget:
 
 
 @dataclass(frozen=True)
+class PositionTarget:
+    """Position, velocity and yaw for the vehicle's onboard position controller (wire:
+    SET_POSITION_TARGET_LOCAL_NED in the local NED frame, acceleration and yaw rate ignored)."""
+
+    time_s: float
+    position_enu_m: Vec3
+    velocity_enu_mps: Vec3 = (0.0, 0.0, 0.0)
+    yaw_enu_rad: float = 0.0  # heading from +x (east) toward +y (north)
+
+
+@dataclass(frozen=True)
 class ImuSample:
     """Specific force and angular rate in the body frame (wire: HIGHRES_IMU)."""
 
@@ -75,6 +86,7 @@ class VehicleMode(IntEnum):
     LEVEL = 3  # watchdog: no setpoint for a while, holding level attitude
     LANDING = 4  # executing a land command
     CRASHED = 5  # flight ended by a collision or leaving the bounds
+    POSITION = 6  # onboard position controller following position setpoints
 
 
 @dataclass(frozen=True)
@@ -200,6 +212,7 @@ class CrashReport:
 Message = (
     ThrustMoment
     | AttitudeTarget
+    | PositionTarget
     | ImuSample
     | MocapPose
     | ExternalPose

@@ -41,6 +41,7 @@ from link.messages import (
     BatteryStatus,
     CommandKind,
     Heartbeat,
+    PositionTarget,
     ThrustMoment,
     VehicleCommand,
     VehicleMode,
@@ -211,6 +212,9 @@ class Firmware:
             return self._take_setpoint(message, arrival_s, self._valid_attitude_target(message))
         if isinstance(message, VehicleCommand):
             return self._take_command(message, arrival_s)
+        if isinstance(message, PositionTarget):  # the ideal vehicle has no position controller
+            self.rejected_commands += 1
+            return False
         if isinstance(message, Heartbeat) and message.is_ground_station:
             self.last_ground_station_heartbeat_s = arrival_s
         return True

@@ -17,6 +17,8 @@ Mapping (message -> MAVLink message: fields):
                       [-1, 1] / [0, 1] are sent as they are: saturation is the vehicle's decision.
     AttitudeTarget -> SET_ATTITUDE_TARGET: q NED/FRD, body rates FRD, thrust / max thrust, type_mask 0.
                       time_boot_ms: millisecond resolution, wraps after 49.7 days.
+    PositionTarget -> SET_POSITION_TARGET_LOCAL_NED: local NED position and velocity, yaw from north
+                      clockwise, acceleration and yaw rate ignored (type_mask), frame MAV_FRAME_LOCAL_NED.
     ImuSample      -> HIGHRES_IMU: x/y/zacc = specific force FRD (MAVLink's accel is specific force:
                       about (0, 0, -9.81) at rest), x/y/zgyro FRD, fields_updated = accel + gyro bits.
     MocapPose      -> ATT_POS_MOCAP: position NED, q NED/FRD, covariance[0] = NaN ("unknown").
@@ -90,6 +92,7 @@ from link.messages import (
     ImuSample,
     Message,
     MocapPose,
+    PositionTarget,
     RadioStatus,
     ThrustMoment,
     TimeSync,
@@ -215,6 +218,7 @@ class _Wire:
 
 W_ACTUATOR = _Wire.of(mav.MAVLink_set_actuator_control_target_message)
 W_ATTITUDE = _Wire.of(mav.MAVLink_set_attitude_target_message)
+W_POSITION = _Wire.of(mav.MAVLink_set_position_target_local_ned_message)
 W_IMU = _Wire.of(mav.MAVLink_highres_imu_message)
 W_MOCAP = _Wire.of(mav.MAVLink_att_pos_mocap_message)
 W_HEARTBEAT = _Wire.of(mav.MAVLink_heartbeat_message)
@@ -261,6 +265,10 @@ def _msec(time_s: float) -> int:
 
 _PACK_ACTUATOR = W_ACTUATOR.unpacker.pack
 _PACK_ATTITUDE = W_ATTITUDE.unpacker.pack
+_PACK_POSITION = W_POSITION.unpacker.pack
+# SET_POSITION_TARGET_LOCAL_NED: position, velocity and yaw used; acceleration and yaw rate ignored
+_POSITION_TYPE_MASK = (mav.POSITION_TARGET_TYPEMASK_AX_IGNORE | mav.POSITION_TARGET_TYPEMASK_AY_IGNORE
+                       | mav.POSITION_TARGET_TYPEMASK_AZ_IGNORE | mav.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE)
 _PACK_IMU = W_IMU.unpacker.pack
 _PACK_MOCAP = W_MOCAP.unpacker.pack
 _PACK_HEARTBEAT = W_HEARTBEAT.unpacker.pack
@@ -283,6 +291,13 @@ def _enc_attitude_target(m: AttitudeTarget, limits: ActuatorLimits, target: int)
     q = quat_enu_flu_to_ned_frd(m.attitude_wxyz)
     p, q_, r = flu_to_frd(m.rates_flu_radps)
     return _PACK_ATTITUDE(_msec(m.time_s), *q, p, q_, r, m.thrust_n / limits.max_thrust_n, target, 0, 0)
+
+
+def _enc_position_target(m: PositionTarget, limits, target: int) -> bytes:
+    p, v = m.position_enu_m, m.velocity_enu_mps
+    yaw_ned = math.remainder(math.pi / 2.0 - m.yaw_enu_rad, 2.0 * math.pi)  # heading from north, clockwise
+    return _PACK_POSITION(_msec(m.time_s), p[1], p[0], -p[2], v[1], v[0], -v[2], 0.0, 0.0, 0.0, yaw_ned, 0.0,
+                          _POSITION_TYPE_MASK, target, 0, mav.MAV_FRAME_LOCAL_NED)
 
 
 def _enc_imu(m: ImuSample, limits, target: int) -> bytes:
@@ -389,6 +404,7 @@ def _enc_crash(m: CrashReport, limits, target: int) -> bytes:
 _ENCODER_WIRES: dict[type, tuple[_Wire, Callable]] = {
     ThrustMoment: (W_ACTUATOR, _enc_thrust_moment),
     AttitudeTarget: (W_ATTITUDE, _enc_attitude_target),
+    PositionTarget: (W_POSITION, _enc_position_target),
     ImuSample: (W_IMU, _enc_imu),
     MocapPose: (W_MOCAP, _enc_mocap),
     ExternalPose: (W_MOCAP, _enc_external_pose),
@@ -437,6 +453,14 @@ def _attitude_target_decoder(limits: ActuatorLimits) -> Callable:
         return AttitudeTarget(v[0] / 1e3, v[8] * max_thrust_n, q, frd_to_flu(rates)), v[9]
 
     return decode
+
+
+def _dec_position_target(v, system_id: int):
+    """Only what we send: local NED, position + velocity + yaw used (anything else is not ours to fly)."""
+    if v[15] != mav.MAV_FRAME_LOCAL_NED or v[12] != _POSITION_TYPE_MASK:
+        return None
+    yaw_enu = math.remainder(math.pi / 2.0 - v[10], 2.0 * math.pi)
+    return PositionTarget(v[0] / 1e3, (v[2], v[1], -v[3]), (v[5], v[4], -v[6]), yaw_enu), v[13]
 
 
 def _dec_imu(v, system_id: int):
@@ -808,6 +832,7 @@ def _parser_table(limits: ActuatorLimits | None) -> dict[int, tuple]:
         W_ODOMETRY: _dec_truth,
         W_DEBUG_ARRAY: _dec_crash,
         W_MOCAP: _dec_mocap,
+        W_POSITION: _dec_position_target,
     }
     if limits is not None:
         decoders[W_ACTUATOR] = _thrust_moment_decoder(limits)
@@ -831,6 +856,8 @@ def sample_messages() -> list[Message]:
         AttitudeTarget(12.345, 0.265, q, (0.1, -0.2, 0.05)),
         ImuSample(12.345678, (0.02, -0.01, 9.81), (0.001, -0.002, 0.003)),
         MocapPose(12.345678, 7, (1.0, 2.0, 0.5), q),
+        ExternalPose(12.345678, (1.0, 2.0, 0.5), q),
+        PositionTarget(12.345, (1.0, 2.0, 0.5), (0.1, 0.2, 0.0), 0.3),
         Heartbeat(True, VehicleMode.ATTITUDE),
         VehicleCommand(12.345, CommandKind.ARM),
         TimeSync(0, 12_345_678_901),

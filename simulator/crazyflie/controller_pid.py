@@ -14,8 +14,9 @@ As in controller_pid.c:
 - roll or pitch in velocity mode overwrite the attitude PID's rate with the setpoint's rate;
 - the rate PIDs read (gyro.x, -gyro.y, gyro.z) (the legacy pitch sign) and the yaw output is negated;
 - a thrust of 0 zeroes the outputs, resets the PIDs and sets the desired yaw to the actual yaw.
-The position and velocity PIDs (POSITION_RATE, 100 Hz) are not here yet: a setpoint with x, y or z
-enabled is refused by stabilizer.py.
+- with x, y or z absolute, the position and velocity PIDs (position_controller.py) run on every fifth tick
+  (POSITION_RATE 100 Hz) and give the desired roll and pitch and the thrust, from the onboard position
+  estimate.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from simulator.crazyflie.attitude_controller import AttitudeController
+from simulator.crazyflie.position_controller import PositionController
 
 MODE_DISABLE, MODE_ABS, MODE_VELOCITY = 0, 1, 2
 
@@ -35,6 +37,7 @@ class Setpoint:
     attitude_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # roll, pitch (legacy), yaw
     attitude_rate_dps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     thrust_pwm: float = 0.0
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world ENU, for x, y, z in absolute mode
 
 
 @dataclass(frozen=True)
@@ -57,21 +60,29 @@ def _cap_angle(angle_deg: float) -> float:
 
 
 class ControllerPid:
-    def __init__(self, attitude: AttitudeController, dt_s: float):
+    def __init__(self, attitude: AttitudeController, dt_s: float, position: PositionController | None = None,
+                 position_every: int = 5):
         self.attitude = attitude
+        self.position = position
+        self.position_every = position_every  # ATTITUDE_RATE / POSITION_RATE
         self.dt_s = dt_s
         self.desired_deg = [0.0, 0.0, 0.0]
         self._previous_modes: tuple[int, ...] | None = None  # None: the first tick resets, as the zero-init does
+        self._tick = 0
+        self._position_output = (0.0, 0.0, 0.0)  # roll deg, pitch deg, thrust PWM from the position loop
 
-    def reinitialize(self, state_deg) -> None:
-        """controllerPidReinitialize (the attitude part)."""
+    def reinitialize(self, state_deg, position_state=None) -> None:
+        """controllerPidReinitialize: the position PIDs from the estimate, the attitude PIDs from the angles."""
+        if self.position is not None and position_state is not None:
+            self.position.reset(*position_state)
         self.attitude.reset_all(*state_deg)
         self.desired_deg[0], self.desired_deg[1] = state_deg[0], state_deg[1]
 
-    def update(self, sp: Setpoint, state_deg, gyro_dps) -> LegacyControl:
+    def update(self, sp: Setpoint, state_deg, gyro_dps, position_state=None) -> LegacyControl:
+        """One 500 Hz tick; position_state = (position m, velocity m/s), world ENU, for absolute x, y, z."""
         if sp.modes != self._previous_modes:
             self._previous_modes = sp.modes
-            self.reinitialize(state_deg)
+            self.reinitialize(state_deg, position_state)
         desired = self.desired_deg
         yaw_mode = sp.modes[5]
         if yaw_mode == MODE_VELOCITY:
@@ -79,8 +90,18 @@ class ControllerPid:
         elif yaw_mode == MODE_ABS:
             desired[2] = sp.attitude_deg[2]
         desired[2] = _cap_angle(desired[2])
-        thrust = sp.thrust_pwm  # z disabled (stabilizer.py refuses the others for now)
-        desired[0], desired[1] = sp.attitude_deg[0], sp.attitude_deg[1]
+        x_mode, y_mode, z_mode = sp.modes[0], sp.modes[1], sp.modes[2]
+        position_loop = MODE_ABS in (x_mode, y_mode, z_mode) and self.position is not None
+        if position_loop and self._tick % self.position_every == 0:
+            self._position_output = self.position.update(sp.position_m, position_state[0], position_state[1],
+                                                         state_deg[2])
+        self._tick += 1
+        roll_pos, pitch_pos, thrust_pos = self._position_output
+        thrust = sp.thrust_pwm if z_mode == MODE_DISABLE or not position_loop else thrust_pos
+        if x_mode == MODE_DISABLE or y_mode == MODE_DISABLE or not position_loop:
+            desired[0], desired[1] = sp.attitude_deg[0], sp.attitude_deg[1]
+        else:
+            desired[0], desired[1] = roll_pos, pitch_pos
         rates = list(self.attitude.correct_attitude(state_deg, desired))
         if sp.modes[3] == MODE_VELOCITY:
             rates[0] = sp.attitude_rate_dps[0]
@@ -88,7 +109,7 @@ class ControllerPid:
             rates[1] = sp.attitude_rate_dps[1]
         roll, pitch, yaw = self.attitude.correct_rate((gyro_dps[0], -gyro_dps[1], gyro_dps[2]), rates)
         if thrust == 0.0:
-            self.reinitialize(state_deg)
+            self.reinitialize(state_deg, position_state)
             desired[2] = state_deg[2]
             return ZERO_CONTROL
         return LegacyControl(thrust, roll, pitch, -yaw)

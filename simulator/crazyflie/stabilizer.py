@@ -38,7 +38,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from link.messages import BatteryStatus, ExternalPose, ImuSample, VehicleMode
+from link.messages import BatteryStatus, ExternalPose, ImuSample, PositionTarget, VehicleMode
 from model.config import Params, resolve
 from model.frames import euler_zyx_of
 from model.vehicle import GRAVITY_MPS2, Vehicle
@@ -46,6 +46,8 @@ from simulator.crazyflie.attitude_controller import AttitudeController
 from simulator.crazyflie.battery import Battery
 from simulator.crazyflie.controller_pid import MODE_ABS, MODE_DISABLE, MODE_VELOCITY, ControllerPid, Setpoint
 from simulator.crazyflie.motors import ThrustCurve
+from simulator.crazyflie.position_controller import PositionController
+from simulator.crazyflie.position_estimator import PositionEstimator
 from simulator.crazyflie.power_distribution import ForceTorqueMixer, cap, legacy
 from simulator.crazyflie.sensfusion6 import Sensfusion6
 from simulator.firmware import MOTORS_OFF, BodyState, Firmware, FirmwareParams
@@ -55,6 +57,9 @@ HISTORY_LENGTH = 250  # estimator updates kept for external fixes: 1 s at 250 Hz
 G_MPS2 = 9.81  # the firmware's G (physicalConstants.h GRAVITY_MAGNITUDE), for m/s^2 <-> g
 ATTITUDE_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS)
 LEVEL_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_VELOCITY)
+POSITION_MODES = (MODE_ABS, MODE_ABS, MODE_ABS, MODE_DISABLE, MODE_DISABLE, MODE_ABS)
+# supervisorOverrideSetpoint on a position setpoint: x, y off, level, yaw rate 0, z kept
+LEVEL_HOLDING_Z_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS, MODE_VELOCITY)
 
 
 @dataclass(frozen=True)
@@ -77,6 +82,9 @@ class CrazyflieParams:
     v_acc_deadband_g: float
     vel_z_alpha: float
     battery: dict
+    position_gains: dict
+    position_rate_hz: float
+    ext_pos_std_m: float
     source: str
 
 
@@ -111,8 +119,18 @@ def load_crazyflie_params(name_or_path: str | Path = "crazyflie") -> CrazyfliePa
         vel_z_alpha=altitude.number("vel_z_alpha", minimum=0.0, maximum=1.0),
         battery={k: battery.number(k, minimum=0.0) for k in (
             "internal_resistance_ohm", "hover_current_a", "hover_thrust_n", "nominal_voltage_v", "power_exponent")},
+        position_gains=_position_gains(p.table("position_controller")),
+        position_rate_hz=p.table("position_controller").number("rate_hz", minimum=1.0),
+        ext_pos_std_m=p.table("position_estimator").number("pos_std_m", minimum=1e-9),
         source=p.source,
     )
+
+
+def _position_gains(t) -> dict:
+    vectors = ("position_kp", "position_ki", "velocity_kp", "velocity_ki", "velocity_max_mps")
+    numbers = ("limit_overhead", "roll_pitch_max_deg", "thrust_base_pwm", "thrust_min_pwm", "thrust_scale",
+               "integration_limit")
+    return {**{k: t.vector(k, 3) for k in vectors}, **{k: t.number(k, minimum=0.0) for k in numbers}}
 
 
 def _deadband(value: float, threshold: float) -> float:
@@ -136,7 +154,13 @@ class CrazyflieFirmware(Firmware):
         cf = cf or load_crazyflie_params()
         self.cf = cf
         dt = 1.0 / cf.attitude_rate_hz
-        self.controller = ControllerPid(AttitudeController(cf.pid_attitude, cf.pid_rate, dt), dt)
+        self.controller = ControllerPid(AttitudeController(cf.pid_attitude, cf.pid_rate, dt), dt,
+                                        PositionController(cf.position_gains, 1.0 / cf.position_rate_hz),
+                                        position_every=max(1, round(cf.attitude_rate_hz / cf.position_rate_hz)))
+        self.position = PositionEstimator(vehicle.imu.accel_noise_density, cf.ext_pos_std_m, G_MPS2)
+        self._sp_position = (0.0, 0.0, 0.0)
+        self._sp_yaw_deg = 0.0
+        self._level_holds_z = False
         self.force_torque = ForceTorqueMixer(cf.arm_length_m, cf.thrust_to_torque_m, cf.curve.thrust_max_n,
                                              cf.curve.pwm_max)
         self.fusion = Sensfusion6(cf.two_kp, cf.two_ki)
@@ -176,10 +200,33 @@ class CrazyflieFirmware(Firmware):
         self._gyro_n = self.cf.gyro_bias_samples
 
     def receive(self, message, arrival_s: float) -> bool:
+        if isinstance(message, PositionTarget):
+            self.count_uplink(arrival_s)
+            return self._take_position_target(message, arrival_s)
         if not super().receive(message, arrival_s):
             return False
         if isinstance(message, ExternalPose):
             self._fuse_external(message, arrival_s)
+        return True
+
+    def _take_position_target(self, sp: PositionTarget, arrival_s: float) -> bool:
+        """A position setpoint for the onboard position controller: refused (counted) when not finite, or
+        while the vehicle has no position estimate (no external pose yet: nothing to fly it on)."""
+        values = (sp.time_s, *sp.position_enu_m, *sp.velocity_enu_mps, sp.yaw_enu_rad)
+        try:
+            finite = len(sp.position_enu_m) == 3 and all(math.isfinite(v) for v in values)
+        except TypeError:
+            finite = False
+        if not finite or not self.position.valid:
+            self.rejected_commands += 1
+            return False
+        if not self.armed or self.mode in (VehicleMode.LANDING, VehicleMode.CRASHED):
+            self.ignored_setpoints += 1
+            return True
+        self._sp_arrival_s = arrival_s
+        self._sp_position = tuple(float(v) for v in sp.position_enu_m)
+        self._sp_yaw_deg = math.degrees(sp.yaw_enu_rad)
+        self.mode = VehicleMode.POSITION
         return True
 
     def _fuse_external(self, pose: ExternalPose, arrival_s: float) -> None:
@@ -190,6 +237,11 @@ class CrazyflieFirmware(Firmware):
             self.rejected_commands += 1
             return
         self._last_ext_arrival_s = arrival_s
+        if all(math.isfinite(v) for v in pose.position_enu_m):
+            previous = self._last_ext_time_s
+            self.position.fuse(pose.position_enu_m, pose.time_s,
+                               0.0 if previous is None else min(max(pose.time_s - previous, 0.0),
+                                                                self.cf.ext_fresh_for_s))
         if self._last_ext_time_s is None:
             self.fusion.q = [float(v) for v in q_ext]
             self._last_ext_time_s = pose.time_s
@@ -240,9 +292,11 @@ class CrazyflieFirmware(Firmware):
         self.fusion.update(self.gyro_dps, self.acc_g, dt, use_accelerometer=not fixes)
         self._history_t.append(self._imu_time_s)
         self._history_q.append(self.fusion.q)
+        a = self.acc_g
+        g = G_MPS2
+        self.position.predict(self._imu_time_s, self.fusion.q, (a[0] * g, a[1] * g, a[2] * g), dt)
         qw, qx, qy, qz = self.fusion.q
         gravity = (2.0 * (qx * qz - qw * qy), 2.0 * (qw * qx + qy * qz), qw * qw - qx * qx - qy * qy + qz * qz)
-        a = self.acc_g
         acc_z = a[0] * gravity[0] + a[1] * gravity[1] + a[2] * gravity[2]
         if self.base_z_acc_g is None:  # sensfusion6UpdateQ: the first reading is the at-rest 1 g
             self.base_z_acc_g = acc_z
@@ -276,8 +330,15 @@ class CrazyflieFirmware(Firmware):
             if age_s > self._shutdown_timeout_s:
                 self.disarm(watchdog=True)
                 return self._drive((0, 0, 0, 0))
+            if self.mode != VehicleMode.LEVEL:
+                self._level_holds_z = self.mode == VehicleMode.POSITION
             self.mode = VehicleMode.LEVEL
+            if self._level_holds_z:
+                return self._drive(self._through_pid(Setpoint(LEVEL_HOLDING_Z_MODES, position_m=self._sp_position)))
             return self._drive(self._through_pid(self._level_setpoint(self._sp_thrust_n)))
+        if self.mode == VehicleMode.POSITION:
+            sp = Setpoint(POSITION_MODES, (0.0, 0.0, self._sp_yaw_deg), position_m=self._sp_position)
+            return self._drive(self._through_pid(sp))
         if self.mode == VehicleMode.ATTITUDE:
             return self._drive(self._through_pid(self._attitude_setpoint()))
         if self.mode == VehicleMode.MOMENTS:
@@ -303,9 +364,10 @@ class CrazyflieFirmware(Firmware):
         return min(max(thrust_n * self._pwm_per_n, 0.0), float(self.cf.curve.pwm_max))
 
     def _through_pid(self, sp: Setpoint) -> tuple[int, int, int, int]:
+        position_state = (self.position.p, self.position.v)
         if "estimator" in self.ideal:
-            return legacy(self.controller.update(sp, *self._true_attitude()))
-        return legacy(self.controller.update(sp, self.estimate_rpy_deg, self.gyro_dps))
+            return legacy(self.controller.update(sp, *self._true_attitude(), position_state))
+        return legacy(self.controller.update(sp, self.estimate_rpy_deg, self.gyro_dps, position_state))
 
     def _true_attitude(self):
         """Ablation: the body's true attitude (legacy roll, pitch, yaw deg) and rates (deg/s)."""

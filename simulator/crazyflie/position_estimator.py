@@ -1,0 +1,67 @@
+"""The onboard position and velocity estimate from the accelerometer and external positions (the firmware
+fuses extpos in its Kalman filter; this is a complementary filter with that filter's steady-state gains).
+
+Takes in: per estimator update (250 Hz) the attitude estimate (w, x, y, z), the specific force (m/s^2, body)
+and dt; per external fix its position (ENU, m) and sample time, and the time since the previous fix.
+Gives out: position (m) and velocity (m/s), world ENU; `valid` once a fix has arrived.
+
+Predict: a = R(q) f - g e_z; v += a dt; p += v dt. Correct, for a fix z at sample time t_z against the
+estimate then (its history): e = z - p(t_z); p += L_p dt_fix e; v += L_v dt_fix e, with w = sqrt(s_a / (s_p
+sqrt(dt_fix))), L_p = sqrt(2) w, L_v = w^2 (simulator/params/crazyflie.toml [position_estimator]).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+
+HISTORY_LENGTH = 250  # 1 s at 250 Hz
+
+
+class PositionEstimator:
+    def __init__(self, accel_density: float, pos_std_m: float, gravity_mps2: float):
+        self.accel_density = accel_density
+        self.pos_std_m = pos_std_m
+        self.gravity = gravity_mps2
+        self.p = [0.0, 0.0, 0.0]
+        self.v = [0.0, 0.0, 0.0]
+        self.valid = False
+        self._times: deque[float] = deque(maxlen=HISTORY_LENGTH)
+        self._positions: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_LENGTH)
+
+    def predict(self, t_s: float, q, f_body, dt: float) -> None:
+        if not self.valid:
+            return
+        w, x, y, z = q
+        fx, fy, fz = f_body
+        # R(q) f: the specific force in the world frame
+        ax = (1 - 2 * (y * y + z * z)) * fx + 2 * (x * y - w * z) * fy + 2 * (x * z + w * y) * fz
+        ay = 2 * (x * y + w * z) * fx + (1 - 2 * (x * x + z * z)) * fy + 2 * (y * z - w * x) * fz
+        az = 2 * (x * z - w * y) * fx + 2 * (y * z + w * x) * fy + (1 - 2 * (x * x + y * y)) * fz - self.gravity
+        p, v = self.p, self.v
+        p[0] += v[0] * dt
+        p[1] += v[1] * dt
+        p[2] += v[2] * dt
+        v[0] += ax * dt
+        v[1] += ay * dt
+        v[2] += az * dt
+        self._times.append(t_s)
+        self._positions.append((p[0], p[1], p[2]))
+
+    def fuse(self, position_enu_m, time_s: float, dt_fix: float) -> None:
+        if not self.valid:  # the first fix sets the position, at rest
+            self.p = [float(c) for c in position_enu_m]
+            self.v = [0.0, 0.0, 0.0]
+            self.valid = True
+            return
+        if dt_fix <= 0.0:
+            return
+        i = bisect.bisect_right(self._times, time_s) - 1
+        then = self._positions[max(i, 0)] if self._positions else tuple(self.p)
+        w = math.sqrt(self.accel_density / (self.pos_std_m * math.sqrt(dt_fix)))
+        gain_p, gain_v = math.sqrt(2.0) * w * dt_fix, w * w * dt_fix
+        for k in range(3):
+            e = position_enu_m[k] - then[k]
+            self.p[k] += gain_p * e
+            self.v[k] += gain_v * e
