@@ -38,7 +38,7 @@ from link.transports.base import free_loopback_port
 from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
 from model.errors import OneLineParser, UserError
 from model.options import float_in, non_negative_float, positive_float, seed, whole_number
-from model.vehicle import load_vehicle
+from model.vehicle import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_model, load_vehicle
 from model.world import World, load_world
 
 log = logging.getLogger("cfstack.groundstation")
@@ -68,7 +68,10 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     g.add_argument("--vehicle", type=whole_number(1, "a vehicle id", MAX_VEHICLE_ID), default=1,
                    help=f"vehicle id (MAVLink system id, 1..{MAX_VEHICLE_ID})")
-    g.add_argument("--vehicle-model", default="crazyflie", help="vehicle parameters: name or TOML file")
+    g.add_argument("--vehicle-model", default=None,
+                   help="vehicle parameters: name or TOML file (default: cf21, the Crazyflie 2.1, with --firmware "
+                        "crazyflie and for a ground station alone; crazyflie, the course model, with --firmware "
+                        "ideal)")
     g.add_argument("--gains", default="gains", help="controller gains: name or TOML file")
     g.add_argument("--latency-compensation", action=argparse.BooleanOptionalAction, default=None,
                    help="predict the state to when each command will act (one-way latency from TIMESYNC), "
@@ -79,7 +82,7 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
                         "velocity/acceleration feed-forward (default: the gains file's variant)")
     g.add_argument("--extpose", action=argparse.BooleanOptionalAction, default=None,
                    help="forward every mocap pose to the vehicle (MAVLink ATT_POS_MOCAP, as a mocap lab streams "
-                        "extpose) for its onboard estimator (default: on with --firmware crazyflie, else off)")
+                        "extpose) for its onboard estimator (default: on, off with --firmware ideal)")
     g.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
     g.add_argument("-v", "--verbose", action="store_true")
     add_zenoh_arguments(p, mode_flag="--zenoh-mode")
@@ -111,10 +114,10 @@ def _emulator_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
     g.add_argument("--seed", type=seed, default=1, help="seed of every random source (0, 1, 2, ...)")
     g.add_argument("--from-ground", action="store_true", help="take off from the floor below the start")
-    g.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
-                   help="the emulated vehicle's onboard side: ideal (the lab report's geometric law on the true "
-                        "state, exact mixer; default) or crazyflie (the Crazyflie's PID stabilizer on its own "
-                        "estimate, PWM, battery; fly it with --vehicle-model cf21)")
+    g.add_argument("--firmware", choices=tuple(FIRMWARE_VEHICLES), default=DEFAULT_FIRMWARE,
+                   help="the emulated vehicle's onboard side: crazyflie (default: the Crazyflie's PID stabilizer on "
+                        "its own estimate, PWM, battery) or ideal (the lab report's geometric law on the true "
+                        "state and an exact mixer, for controller-only studies)")
     g.add_argument("--vehicle-draw", default="nominal", metavar="PROFILE",
                    help="the emulated vehicle's variation from its nominal file: nominal (default) or lab (mass, "
                         "centre of mass, motor thrusts, IMU alignment drawn from the seed; this ground station "
@@ -129,6 +132,8 @@ def _parsed(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
     if resolution is not None and len(resolution) not in (1, 3):
         raise UserError(f"argument --resolution: give one value or three, not {len(resolution)} "
                         f"(see '{p.prog} --help')")
+    if getattr(args, "vehicle_model", "") is None:
+        args.vehicle_model = default_vehicle_model(getattr(args, "firmware", DEFAULT_FIRMWARE))
     level = logging.INFO if args.verbose else logging.WARNING
     logging.basicConfig(level=level, format="%(name)s: %(message)s", stream=sys.stderr)
     return args
@@ -189,10 +194,11 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
 
 
 def _extpose(args) -> bool:
-    """--extpose as given; by default on when this command started a faithful (onboard-estimating) vehicle."""
+    """--extpose as given; by default on, as a mocap lab streams the pose to its vehicles, except when this
+    command started the ideal vehicle (which reads the truth and ignores it)."""
     if args.extpose is not None:
         return args.extpose
-    return getattr(args, "firmware", "ideal") == "crazyflie"
+    return getattr(args, "firmware", DEFAULT_FIRMWARE) != "ideal"
 
 
 def _explain_silence(summary: dict, zopts: dict) -> None:

@@ -52,7 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--world", help="world JSON file (default: an empty room)")
     p.add_argument("--vehicles", type=whole_number(1, "a vehicle count", MAX_VEHICLE_ID), default=1,
                    help="number of vehicles (ids 1..N)")
-    p.add_argument("--vehicle-model", default="crazyflie", help="vehicle name (crazyflie, cf2x) or TOML file")
+    p.add_argument("--vehicle-model", default=None,
+                   help="vehicle name (cf21, crazyflie, cf2x) or TOML file (default: the firmware's: cf21 with "
+                        "--firmware crazyflie, crazyflie with --firmware ideal)")
     p.add_argument("--mocap-room", default="vicon", help="mocap room name or TOML file")
     p.add_argument("--radio", default="crazyradio", help="radio profile name (ideal, crazyradio, lab, harsh) or TOML")
     p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
@@ -61,9 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=seed, default=1, help="seed of every random source (>= 0)")
     p.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
     p.add_argument("--physics-rate", type=positive_float, default=1000.0, help="physics steps per second")
-    p.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
-                   help="the onboard side: ideal (the lab report's geometric law on the true state, exact mixer; "
-                        "default) or crazyflie (the Crazyflie's PID stabilizer on its own estimate, PWM, battery)")
+    p.add_argument("--firmware", choices=("crazyflie", "ideal"), default="crazyflie",
+                   help="the onboard side: crazyflie (default: the Crazyflie's PID stabilizer on its own estimate, "
+                        "PWM, battery) or ideal (the lab report's geometric law on the true state, exact mixer)")
     p.add_argument("--ideal", dest="ideal_parts", action="append", default=[], choices=("estimator", "battery"),
                    help="ablation studies only: make one part of the crazyflie firmware ideal (estimator: fly on "
                         "the true attitude; battery: full voltage, no sag) (repeatable)")
@@ -95,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
     from model.radio import load_radio_profile
-    from model.vehicle import load_mocap_room, load_vehicle
+    from model.vehicle import default_vehicle_model, load_mocap_room, load_vehicle
     from model.world import load_world
     from simulator.emulator_config import EmulatorConfig
     from simulator.faults import Outage
@@ -112,7 +114,8 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         x, y, z = args.start
         starts = [(x + 0.5 * i, y, z) for i in range(args.vehicles)]
     return EmulatorConfig(
-        vehicle=load_vehicle(args.vehicle_model), mocap_room=load_mocap_room(args.mocap_room),
+        vehicle=load_vehicle(args.vehicle_model or default_vehicle_model(args.firmware)),
+        mocap_room=load_mocap_room(args.mocap_room),
         radio=load_radio_profile(args.radio), world=world, vehicles=args.vehicles, seed=args.seed,
         clock=args.clock, physics_rate_hz=args.physics_rate, prefix=args.prefix,
         connection="zenoh", zenoh_options=_zenoh_options(args), start_positions_enu_m=starts,

@@ -36,7 +36,8 @@ class EmulatorConfig:
     zenoh_options: dict = field(default_factory=dict)
     start_positions_enu_m: list[tuple[float, float, float]] | None = None
     airborne: bool = False
-    firmware: str = "ideal"  # the onboard side: "ideal" or "crazyflie" (simulator.vehicle_sim.make_firmware)
+    # the onboard side, "ideal" or "crazyflie" (simulator.vehicle_sim.make_firmware; the CLI default is crazyflie)
+    firmware: str = "ideal"
     ideal_parts: tuple[str, ...] = ()  # ablation: faithful-firmware parts made ideal (estimator, battery)
     variation: object | None = None  # simulator.variation.VariationProfile: each vehicle's own draw; None: nominal
     signing: object | None = None

@@ -35,7 +35,7 @@ from groundstation.sweep.table import CellResult, _check_resume, read_csv, survi
 from model.errors import OneLineParser, UserError
 from model.options import positive_float, seed, whole_number
 from model.radio import radio_profile_path
-from model.vehicle import load_vehicle
+from model.vehicle import default_vehicle_model, load_vehicle
 from model.world import load_world
 
 DEFAULT_BASE_PROFILE = "ideal"  # no impairment but the swept ones
@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=positive_float, default=DEFAULT_CELL_TIMEOUT_S, metavar="S",
                    help=f"wall-clock limit of one flight, s (default {DEFAULT_CELL_TIMEOUT_S:g}); a timeout is a "
                         "failed cell")
-    p.add_argument("--firmware", choices=("ideal", "crazyflie"), default="ideal",
+    p.add_argument("--firmware", choices=("crazyflie", "ideal"), default="crazyflie",
                    help="the emulated vehicle's onboard side for every flight (see `cfstack fly --help`)")
     p.add_argument("--vehicle-draw", default="nominal", metavar="PROFILE",
                    help="each flight's vehicle variation (see `cfstack fly --help`); drawn from the flight's seed")
@@ -111,9 +111,9 @@ def _check_extra(extra: str) -> tuple[str, ...]:
     return tokens
 
 
-def _vehicle_model(extra: tuple[str, ...]) -> str:
-    """The --vehicle-model the flights will use (the last one given in --extra), else fly's default."""
-    model = "crazyflie"
+def _vehicle_model(extra: tuple[str, ...], firmware: str) -> str:
+    """The --vehicle-model the flights will use (the last one given in --extra), else fly's default for it."""
+    model = default_vehicle_model(firmware)
     for i, token in enumerate(extra):
         if token.startswith("--vehicle-model="):
             model = token.split("=", 1)[1]
@@ -139,7 +139,7 @@ def parse_options(argv: Sequence[str]) -> SweepOptions:
     if args.world is not None:
         # Fail now, not after the first flight: the same pre-flight check as fly (a start or goal inside a
         # block is refused, naming the file); fly itself moves a point on the bounds and warns.
-        checked_world(load_world(args.world), load_vehicle(_vehicle_model(extra)).collision_radius_m)
+        checked_world(load_world(args.world), load_vehicle(_vehicle_model(extra, args.firmware)).collision_radius_m)
     modes = tuple(dict.fromkeys(args.mode)) if args.mode else MODES
     return SweepOptions(
         world=args.world, modes=modes,

@@ -35,7 +35,7 @@ class SweepOptions:
     latency_compensation: bool | None = None  # None: fly's default
     timeout_s: float = DEFAULT_CELL_TIMEOUT_S
     resume: bool = False
-    firmware: str = "ideal"  # the emulated vehicle's onboard side (fly --firmware)
+    firmware: str = "crazyflie"  # the emulated vehicle's onboard side (fly --firmware)
     vehicle_draw: str = "nominal"  # the emulated vehicle's variation profile (fly --vehicle-draw)
 
     def settings(self) -> dict:
