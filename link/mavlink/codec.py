@@ -856,7 +856,6 @@ def sample_messages() -> list[Message]:
         AttitudeTarget(12.345, 0.265, q, (0.1, -0.2, 0.05)),
         ImuSample(12.345678, (0.02, -0.01, 9.81), (0.001, -0.002, 0.003)),
         MocapPose(12.345678, 7, (1.0, 2.0, 0.5), q),
-        ExternalPose(12.345678, (1.0, 2.0, 0.5), q),
         PositionTarget(12.345, (1.0, 2.0, 0.5), (0.1, 0.2, 0.0), 0.3),
         Heartbeat(True, VehicleMode.ATTITUDE),
         VehicleCommand(12.345, CommandKind.ARM),

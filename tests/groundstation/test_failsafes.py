@@ -12,6 +12,10 @@ mission failsafe thresholds, radio and mocap latencies, attitude gains), never f
 - mocap cut for good: hold, then failsafe descent after mocap_descend_after_s (and a soft landing);
 - signing on and a rogue publisher on the uplink key (unsigned commands, replayed signed frames): none
   is applied - the flight is byte-identical to one without the rogue - and the emulator counts them.
+The `fly` flights use `--firmware ideal`: the expected attitude and descent figures are the ideal law's
+(K_R). With the faithful firmware a mocap loss for good is worse than this: in flight the complementary
+filter's accelerometer sees thrust, not gravity, so the attitude the vehicle holds drifts and the failsafe
+descent ends in a wall (README, "The emulated Crazyflie").
 """
 
 from __future__ import annotations
@@ -81,7 +85,8 @@ def world(tmp_path_factory) -> Path:
 def fly(world: Path, folder: Path, *extra: str, radio: str = RADIO, env: dict | None = None):
     """`cfstack fly` with the emulator's radio report; (exit code, summary, states log, radio report)."""
     report = folder / "radio.json"
-    run = cfstack("fly", str(world), "--mode", MODE, "--radio", radio, "--clock", "lockstep", "--seed", str(SEED),
+    run = cfstack("fly", str(world), "--firmware", "ideal", "--mode", MODE, "--radio", radio, "--clock", "lockstep",
+                  "--seed", str(SEED),
                   "--json", "--log", str(folder / "log"), "--id", f"fs{uuid.uuid4().hex[:8]}", *PLAN_ARGS,
                   f"--emulator-arg=--radio-ledger={report}", *extra, env=env)
     assert run.stdout.strip(), run.stderr
@@ -341,7 +346,7 @@ def test_signed_flight_ignores_a_rogue_publishers_unsigned_and_replayed_frames(w
     report_path = tmp_path / "radio.json"
     emulator = subprocess.Popen(
         [sys.executable, "-m", "cfstack", "emulator", "--listen", endpoint, "--clock", "lockstep", "--radio", radio,
-         "--seed", str(SEED), "--id", prefix, "--world", str(world), "--airborne", "--quiet",
+         "--firmware", "ideal", "--seed", str(SEED), "--id", prefix, "--world", str(world), "--airborne", "--quiet",
          "--radio-ledger", str(report_path)],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
     rogue = None
@@ -349,8 +354,10 @@ def test_signed_flight_ignores_a_rogue_publishers_unsigned_and_replayed_frames(w
         rogue = Rogue(endpoint, VehicleKeys(prefix, 1))
         rogue.start()
         log = tmp_path / "rogue"
+        # as `fly --firmware ideal` flies it: the course model, no extpose (the ideal vehicle reads the truth)
         run = cfstack("groundstation", "--world", str(world), "--connect", endpoint, "--id", prefix,
-                      "--clock", "lockstep", "--mode", MODE, "--json", "--log", str(log), *PLAN_ARGS, env=env)
+                      "--clock", "lockstep", "--mode", MODE, "--vehicle-model", "crazyflie", "--no-extpose",
+                      "--json", "--log", str(log), *PLAN_ARGS, env=env)
     finally:
         if rogue is not None:
             rogue.stop()

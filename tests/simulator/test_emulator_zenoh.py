@@ -229,8 +229,9 @@ class Responder:
 @contextmanager
 def emulator(endpoint: str, *args: str):
     """`python -m cfstack emulator` connected to our endpoint; yields the process, stops it at the end."""
+    # the ideal firmware: these tests check the emulator's protocol and commander against the exact mixer
     cmd = [sys.executable, "-m", "cfstack", "emulator", "--connect", endpoint, "--id", PREFIX, "--clock", "lockstep",
-           "--quiet", *args]
+           "--firmware", "ideal", "--quiet", *args]
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)
     try:
