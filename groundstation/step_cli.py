@@ -7,7 +7,8 @@ Gives out: the flight's summary, then the step metrics, each with its definition
 values (groundstation/params/lab_fig1.toml), and a Fig. 1-like PNG in the log folder. With --json one JSON
 object (the summary with "step" and "lab_fig1"). With --ablate: the same step flown once as configured and
 once with each modelled cause of the hardware/simulation gap made ideal in turn (radio latency, the onboard
-PID and its estimator vs the ideal law, the onboard estimator, motor lag, PWM/battery, the vehicle draw), as
+PID and its estimator vs the ideal law, the onboard estimator, motor lag, PWM/battery, the mass offset, the
+whole vehicle draw), as
 a table (stdout, and ablation.csv) and an overlay plot (ablation.png) in the log folder.
 Exit code 0 when the flight (every flight with --ablate) reached its goal, 1 otherwise, 2 for bad input.
 """
@@ -65,6 +66,7 @@ class Ablation:
     options: dict
     ideal_parts: tuple[str, ...] = ()
     no_motor_lag: bool = False
+    no_mass_offset: bool = False
 
 
 ABLATIONS = (
@@ -74,6 +76,7 @@ ABLATIONS = (
     Ablation("true_attitude", "onboard PID on the true attitude (no estimator)", {}, ideal_parts=("estimator",)),
     Ablation("no_motor_lag", "no motor lag", {}, no_motor_lag=True),
     Ablation("ideal_battery", "full battery, no sag (PWM exact)", {}, ideal_parts=("battery",)),
+    Ablation("no_mass_offset", "the vehicle draw without its mass offset", {}, no_mass_offset=True),
     Ablation("nominal_vehicle", "nominal vehicle (no mass, CoM, motor, IMU draw)", {"vehicle_draw": "nominal"}),
 )
 
@@ -193,7 +196,21 @@ def _ablation_args(args, ablation: Ablation, folder: Path):
     run.json = False
     if ablation.no_motor_lag:
         run.vehicle_model = str(_without_motor_lag(args.vehicle_model, folder))
+    if ablation.no_mass_offset:
+        run.vehicle_draw = str(_without_mass_offset(args.vehicle_draw, folder))
     return run
+
+
+def _without_mass_offset(profile: str, folder: Path) -> Path:
+    """A copy of the variation profile with mass_offset_kg = [0, 0]: every other draw stays the same (the
+    draw takes the same random numbers whatever the ranges)."""
+    if profile == "nominal":
+        profile = "lab"  # nothing to remove from nominal: show the lab draw without its mass
+    source = Path(profile) if profile.endswith(".toml") else builtin_path("simulator", "params/variation", profile)
+    text = re.sub(r"(?m)^mass_offset_kg\s*=\s*\[[^\]]*\]", "mass_offset_kg = [0.0, 0.0]", source.read_text())
+    path = folder / f"{source.stem}_no_mass_offset.toml"
+    path.write_text(text)
+    return path
 
 
 def _without_motor_lag(vehicle_model: str, folder: Path) -> Path:

@@ -55,6 +55,7 @@ def test_ablation_flies_each_cause_made_ideal_and_tabulates_them(tmp_path):
     assert flown["no_latency"]["link"]["rtt_ms_p50"] < flown["as_configured"]["link"]["rtt_ms_p50"]
     assert flown["ideal_law"]["firmware"] == "ideal"
     assert flown["nominal_vehicle"]["vehicle_draw"] == "nominal"
+    assert "mass_offset_kg = [0.0, 0.0]" in (folder / "lab_no_mass_offset.toml").read_text()
     assert (folder / "cf21_no_motor_lag.toml").read_text().count("time_constant_s = 0.0") == 1
     assert (folder / "ablation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "lab hardware (Fig. 1)" in run.stdout
