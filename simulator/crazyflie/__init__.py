@@ -6,6 +6,9 @@ simulator/params/crazyflie.toml):
 - pid.py                 the PID object (src/utils/src/pid.c)
 - attitude_controller.py the attitude and rate PIDs, 500 Hz (controller/attitude_pid_controller.c)
 - controller_pid.py      the PID controller's flow: yaw-rate integration, resets, legacy pitch (controller_pid.c)
+- position_controller.py the position and velocity PIDs, 100 Hz (controller/position_controller_pid.c)
+- position_estimator.py  the onboard position and velocity from the accelerometer and external positions
+- commander_rpyt.py      the legacy RPYT setpoint: thrust lock, thrust limits (crtp_commander_rpyt.c), for CRTP
 - power_distribution.py  legacy and force-torque mixers, the cap (power_distribution_quadrotor.c)
 - motors.py              battery compensation and the motor-voltage thrust curve (motors.c, platform_defaults_cf2.h)
 - battery.py             the battery: open-circuit voltage, sag under load

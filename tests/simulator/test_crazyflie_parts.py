@@ -181,3 +181,23 @@ def test_complementary_filter_levels_to_gravity_and_reports_legacy_pitch():
     roll, legacy_pitch, yaw = f.euler_rpy_deg()
     # the legacy frame's pitch is positive nose up (the opposite of the FLU pitch)
     assert legacy_pitch == pytest.approx(10.0, abs=0.1) and abs(roll) < 1e-9 and abs(yaw) < 1e-9
+
+
+def test_rpyt_thrust_lock_min_max_and_inverted_yaw_rate():
+    from simulator.crazyflie.commander_rpyt import MAX_THRUST, RpytDecoder
+
+    rpyt = RpytDecoder()
+    # locked after start-up: a stale non-zero thrust spins nothing until a zero-thrust packet has come
+    assert rpyt.decode(0.0, 0.0, 0.0, 40000).thrust_pwm == 0.0
+    assert rpyt.decode(0.0, 0.0, 0.0, 0).thrust_pwm == 0.0
+    sp = rpyt.decode(5.0, -3.0, 30.0, 40000)
+    assert sp.thrust_pwm == 40000.0 and sp.attitude_deg[:2] == (5.0, -3.0)
+    assert sp.attitude_rate_dps[2] == -30.0  # "legacy rate input is inverted"
+    assert sp.modes == (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_VELOCITY)
+    assert rpyt.decode(0.0, 0.0, 0.0, 999).thrust_pwm == 0.0  # below MIN_THRUST
+    assert rpyt.decode(0.0, 0.0, 0.0, 65000).thrust_pwm == MAX_THRUST
+    # the commander fell back to DISABLE (watchdog): locked again until the next zero
+    assert rpyt.decode(0.0, 0.0, 0.0, 40000, priority_disabled=True).thrust_pwm == 0.0
+    assert rpyt.decode(0.0, 0.0, 0.0, 40000).thrust_pwm == 0.0
+    rpyt.decode(0.0, 0.0, 0.0, 0)
+    assert rpyt.decode(0.0, 0.0, 0.0, 40000).thrust_pwm == 40000.0
