@@ -146,6 +146,22 @@ def plot_tracking_error(log: FlightLog) -> Figure:
     return fig
 
 
+def _robust_limits(ax, error: np.ndarray, sigma: np.ndarray) -> None:
+    """Scale the panel to the bulk of the error and its 3 sigma band (99.5th percentile of each), so that one
+    touchdown spike does not flatten the flight; what falls outside is said in the panel."""
+    known = np.abs(error[np.isfinite(error)])
+    band = sigma[np.isfinite(sigma)]
+    if not known.size:
+        return
+    limit = 1.2 * max(np.percentile(known, 99.5), np.percentile(band, 99.5) if band.size else 0.0)
+    if limit <= 0.0 or known.max() <= limit:
+        return
+    ax.set_ylim(-limit, limit)
+    outside = int(np.count_nonzero(known > limit))
+    ax.text(0.01, 0.05, f"{outside} sample(s) beyond the scale (max {known.max():.3g})", transform=ax.transAxes,
+            fontsize="x-small", color="0.35")
+
+
 def _truth_at_estimate_time(log: FlightLog, truth: np.ndarray) -> np.ndarray:
     """The truth at each row's estimate sample time (interpolated between the truth samples by their own
     times): a row's truth and estimate were sampled a few ms apart, which at 1 m/s is a millimetre, larger
@@ -175,6 +191,7 @@ def plot_estimator_error(log: FlightLog) -> Figure:
                 ax.fill_between(log.t_s, -sigma, sigma, color="tab:blue", alpha=0.2, linewidth=0,
                                 label=f"±{SIGMA_BAND:g}σ (estimator)")
             ax.plot(log.t_s, error[:, i], color="tab:blue", linewidth=0.9, label="estimate - truth")
+            _robust_limits(ax, error[:, i], sigma)
             ax.axhline(0.0, color="black", linewidth=0.5)
             ax.text(0.99, 0.95, f"RMS {_rms(error[:, i]):.3g} {unit}", transform=ax.transAxes, ha="right",
                     va="top", fontsize="small", bbox=dict(facecolor="white", alpha=0.8, linewidth=0))
@@ -234,9 +251,15 @@ def plot_link_health(log: FlightLog, rate_window_s: float = DEFAULT_RATE_WINDOW_
     ax_rate.set_ylabel(f"messages/s\n({rate_window_s:g} s window)")
     ax_rtt.plot(t, log.columns["rtt_ms"], color="tab:purple", linewidth=0.9, label="round-trip time")
     ax_rtt.set_ylabel("RTT (ms)")
-    ax_mocap.plot(t, 1e3 * log.columns["mocap_age_s"], color="tab:brown", linewidth=0.9, label="mocap age")
+    _plot_envelope(ax_mocap, t, 1e3 * log.columns["mocap_age_s"], rate_window_s, "mocap age", "tab:brown")
     ax_mocap.set_ylabel("mocap age (ms)")
-    ax_tick.plot(t, log.columns["tick_time_ms"], color="tab:blue", linewidth=0.9, label="control tick time")
+    tick = log.columns["tick_time_ms"]
+    if np.isfinite(tick).any():
+        ax_tick.plot(t, tick, color="tab:blue", linewidth=0.9, label="control tick time")
+    else:  # lockstep logs leave the wall-clock columns empty so that they depend on the seed alone
+        ax_tick.text(0.5, 0.5, "no tick times: a lockstep flight logs no wall-clock time\n(fly with --clock "
+                     "realtime to measure them)", transform=ax_tick.transAxes, ha="center", va="center",
+                     fontsize="small", color="0.35")
     ax_tick.set_ylabel("tick time (ms)")
     for ax in axes:
         ax.grid(alpha=0.3)
@@ -244,6 +267,27 @@ def plot_link_health(log: FlightLog, rate_window_s: float = DEFAULT_RATE_WINDOW_
     ax_tick.set_xlabel("time t (s)")
     fig.suptitle(f"Link health: {_flight_name(log)}")
     return fig
+
+
+def _plot_envelope(ax, t: np.ndarray, values: np.ndarray, window_s: float, label: str, color: str) -> None:
+    """A quantity that saws between samples (an age resets at each frame): its min-max band and median over
+    windows of window_s, which stays readable where the raw line would fill the panel."""
+    known = np.isfinite(values)
+    if not known.any():
+        return
+    edges = np.arange(t[0], t[-1] + window_s, window_s)
+    which = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, len(edges) - 1)
+    centres, lows, highs, medians = [], [], [], []
+    for k in range(len(edges)):
+        chunk = values[(which == k) & known]
+        if chunk.size:
+            centres.append(edges[k] + window_s / 2)
+            lows.append(chunk.min())
+            highs.append(chunk.max())
+            medians.append(np.median(chunk))
+    ax.fill_between(centres, lows, highs, color=color, alpha=0.25, linewidth=0,
+                    label=f"{label}: min-max per {window_s:g} s")
+    ax.plot(centres, medians, color=color, linewidth=1.0, label=f"{label}: median per {window_s:g} s")
 
 
 def plot_position_velocity(log: FlightLog) -> Figure:

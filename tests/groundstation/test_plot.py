@@ -257,3 +257,25 @@ def test_commands_show_attitude_when_moments_are_empty(tmp_path):
     figure = plot.plot_commands(flight)
     assert "attitude" in figure.axes[1].get_ylabel() and "(deg)" in figure.axes[1].get_ylabel()
     assert "(N)" in figure.axes[0].get_ylabel()
+
+
+def test_one_spike_does_not_set_the_scale_of_an_error_panel():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from groundstation.plot import _robust_limits
+
+    rng = np.random.default_rng(0)
+    error = rng.normal(0.0, 0.001, 5000)
+    error[2500] = 0.1  # a touchdown spike, 100 sigma
+    sigma = np.full(5000, 0.001)
+    fig, ax = plt.subplots()
+    ax.plot(error)
+    _robust_limits(ax, error, sigma)
+    low, high = ax.get_ylim()
+    assert high < 0.01 and low > -0.01  # the bulk (and the 3 sigma band) sets the scale, not the spike
+    # the panel says what it leaves out: the spike (and a rare tail sample beyond 1.2 x the 99.5th percentile)
+    assert any("beyond the scale (max 0.1)" in t.get_text() for t in ax.texts)
+    plt.close(fig)
