@@ -60,7 +60,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import zenoh
 
 from link.endpoint import Endpoint
 from link.keys import DEFAULT_PREFIX, GROUND_STATION_SYSTEM_ID
@@ -69,8 +68,8 @@ from link.messages import CommandKind, ImuSample, Message, ThrustMoment, Vehicle
 from link.transports import open_transport
 from link.transports.base import free_loopback_port
 from link.transports.udp import DEFAULT_SOCKET_BUFFER_BYTES, MAX_DATAGRAM_BYTES
+from link.transports.zenoh_bare import ZENOH_ERRORS, BareZenoh
 from link.transports.zenoh_session import ZenohSettings, acquire_session, release_session
-from link.transports.zenoh_transport import DEFAULT_EXPRESS, DEFAULT_QUEUE_FRAMES, MATCHING_POLL_S
 from model.errors import UserError
 from model.vehicle import load_vehicle
 
@@ -130,50 +129,6 @@ def _template(kind: type) -> Message:
 
 # ---------------------------------------------------------------------------------------------------
 # Pipes: what each path is, at either end. Bare pipes move bytes; link paths are Endpoints.
-
-
-class BareZenoh:
-    """A raw zenoh publisher and FIFO subscriber on a session; recv() blocks (no timeout in zenoh)."""
-
-    def __init__(self, session: zenoh.Session, tx_key: str, rx_key: str):
-        self.publisher = session.declare_publisher(
-            tx_key, reliability=zenoh.Reliability.RELIABLE, congestion_control=zenoh.CongestionControl.BLOCK,
-            express=DEFAULT_EXPRESS)
-        self.subscriber = session.declare_subscriber(rx_key, zenoh.handlers.FifoChannel(DEFAULT_QUEUE_FRAMES))
-        self._handler = self.subscriber.handler
-
-    def send(self, payload: bytes) -> None:
-        self.publisher.put(payload)
-
-    def recv(self) -> bytes:
-        return self._handler.recv().payload.to_bytes()
-
-    def wait_for_subscribers(self, timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while not self.publisher.matching_status.matching:
-            if time.monotonic() >= deadline:
-                return False
-            time.sleep(MATCHING_POLL_S)
-        return True
-
-    @contextlib.contextmanager
-    def guard(self, limit_s: float) -> Iterator[None]:
-        """Undeclare the subscriber if the block takes longer than `limit_s`: a blocked recv() then raises
-        instead of hanging for ever (zenoh's recv has no timeout)."""
-        timer = threading.Timer(limit_s, self.subscriber.undeclare)
-        timer.daemon = True
-        timer.start()
-        try:
-            yield
-        except zenoh.ZError:
-            raise UserError(f"bare zenoh got no reply within {limit_s:.0f} s") from None
-        finally:
-            timer.cancel()
-
-    def close(self) -> None:
-        for entity in (self.subscriber, self.publisher):
-            with contextlib.suppress(zenoh.ZError):
-                entity.undeclare()
 
 
 class BareUdp:
@@ -416,7 +371,7 @@ def serve_echo(zenoh_endpoint: str, prefix: str) -> int:
                 return 0
             try:
                 result = _run_phase(side, words)
-            except (TimeoutError, zenoh.ZError) as err:
+            except (TimeoutError, *ZENOH_ERRORS) as err:
                 result = f"failed {type(err).__name__}"
             print(result, flush=True)
     finally:
