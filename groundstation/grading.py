@@ -163,18 +163,19 @@ def _failsafe(mission, t: np.ndarray, phase: np.ndarray, est: np.ndarray) -> dic
             "reason": f"failsafe {_while(at)} at t={seen_s:.3f} s: {mission.failsafe_reason}"}
 
 
+def _tick_at(t: np.ndarray, time_s: float) -> int:
+    """Index of the last tick at or before time_s (the first tick's before the log starts)."""
+    return max(0, int(np.searchsorted(t, time_s, side="right")) - 1)
+
+
 def _phase_at(t: np.ndarray, phase: np.ndarray, time_s: float) -> str:
-    """The phase of the last tick at or before time_s (the first tick's before the log starts)."""
-    if not t.size:
-        return "connect"
-    i = max(0, int(np.searchsorted(t, time_s, side="right")) - 1)
-    return str(phase[i])
+    return str(phase[_tick_at(t, time_s)]) if t.size else "connect"
 
 
 def _estimate_at(t: np.ndarray, est: np.ndarray, time_s: float) -> list[float] | None:
     if not t.size:
         return None
-    i = max(0, int(np.searchsorted(t, time_s, side="right")) - 1)
+    i = _tick_at(t, time_s)
     return est[i].tolist() if np.isfinite(est[i]).all() else None
 
 

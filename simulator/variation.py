@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Params, resolve
+from model.frames import Mat9, quat_conjugate, quat_exp, quat_to_rows
 from model.vehicle import Vehicle
 
 NOMINAL = "nominal"
@@ -53,16 +54,9 @@ class VehicleDraw:
         return dataclasses.replace(vehicle, mass_kg=vehicle.mass_kg + self.mass_offset_kg,
                                    rotor_positions_flu_m=positions)
 
-    def misalignment_rows(self) -> tuple[tuple[float, ...], ...]:
-        """The IMU's rotation from the body frame (rows of R = exp(hat(r))), applied to what it measures."""
-        r = np.asarray(self.imu_misalignment_rad, float)
-        angle = float(np.linalg.norm(r))
-        if angle == 0.0:
-            return ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-        k = r / angle
-        kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-        rot = np.eye(3) + math.sin(angle) * kx + (1.0 - math.cos(angle)) * kx @ kx
-        return tuple(tuple(float(v) for v in row) for row in rot.T)  # sensor reads R^T v_body
+    def misalignment_rows(self) -> Mat9:
+        """R^T (row-major) for the IMU's rotation R = Exp(r) from the body: the sensor reads R^T v_body."""
+        return quat_to_rows(quat_conjugate(quat_exp(*self.imu_misalignment_rad)))
 
     def describe(self) -> str:
         f = ", ".join(f"{v:.3f}" for v in self.motor_thrust_factors)

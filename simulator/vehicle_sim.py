@@ -36,6 +36,7 @@ import numpy as np
 
 from link.messages import Message, TimeSync, TruthState
 from model.errors import UserError, WorldError
+from model.frames import rotate
 from model.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
 from model.world import World
 from simulator.dynamics import Crash, QuadrotorDynamics
@@ -301,7 +302,7 @@ class SimVehicle:
             f = (f[0] + dv[0] * rate, f[1] + dv[1] * rate, f[2] + dv[2] * rate)
         w = d.rate_flu_radps
         if self._imu_misaligned:  # the IMU measures in its own, slightly rotated axes
-            f, w = _rotated(self._imu_rows, f), _rotated(self._imu_rows, w)
+            f, w = rotate(self._imu_rows, *f), rotate(self._imu_rows, *w)
         sample = self.imu.sample(t, f, w)
         if self._imu_before_firmware:
             self.firmware.take_imu(sample)
@@ -317,12 +318,6 @@ class SimVehicle:
     def _emit_truth(self, t: float) -> None:
         self._truth.advance(t)
         self._out.append(Output(t, "truth", self.dynamics.truth()))
-
-
-def _rotated(rows, v) -> tuple[float, float, float]:
-    r0, r1, r2 = rows
-    return (r0[0] * v[0] + r0[1] * v[1] + r0[2] * v[2], r1[0] * v[0] + r1[1] * v[1] + r1[2] * v[2],
-            r2[0] * v[0] + r2[1] * v[1] + r2[2] * v[2])
 
 
 FIRMWARES = ("ideal", "crazyflie")

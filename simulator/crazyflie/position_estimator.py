@@ -12,11 +12,10 @@ sqrt(dt_fix))), L_p = sqrt(2) w, L_v = w^2 (simulator/params/crazyflie.toml [pos
 
 from __future__ import annotations
 
-import bisect
 import math
-from collections import deque
 
-HISTORY_LENGTH = 250  # 1 s at 250 Hz
+from model.frames import quat_to_rows, rotate
+from simulator.crazyflie.history import TimeHistory
 
 
 class PositionEstimator:
@@ -27,18 +26,13 @@ class PositionEstimator:
         self.p = [0.0, 0.0, 0.0]
         self.v = [0.0, 0.0, 0.0]
         self.valid = False
-        self._times: deque[float] = deque(maxlen=HISTORY_LENGTH)
-        self._positions: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_LENGTH)
+        self._history = TimeHistory()  # (sample time, position) per update
 
     def predict(self, t_s: float, q, f_body, dt: float) -> None:
         if not self.valid:
             return
-        w, x, y, z = q
-        fx, fy, fz = f_body
-        # R(q) f: the specific force in the world frame
-        ax = (1 - 2 * (y * y + z * z)) * fx + 2 * (x * y - w * z) * fy + 2 * (x * z + w * y) * fz
-        ay = 2 * (x * y + w * z) * fx + (1 - 2 * (x * x + z * z)) * fy + 2 * (y * z - w * x) * fz
-        az = 2 * (x * z - w * y) * fx + 2 * (y * z + w * x) * fy + (1 - 2 * (x * x + y * y)) * fz - self.gravity
+        ax, ay, az = rotate(quat_to_rows(q), *f_body)  # the specific force in the world frame
+        az -= self.gravity
         p, v = self.p, self.v
         p[0] += v[0] * dt
         p[1] += v[1] * dt
@@ -46,8 +40,7 @@ class PositionEstimator:
         v[0] += ax * dt
         v[1] += ay * dt
         v[2] += az * dt
-        self._times.append(t_s)
-        self._positions.append((p[0], p[1], p[2]))
+        self._history.append(t_s, (p[0], p[1], p[2]))
 
     def fuse(self, position_enu_m, time_s: float, dt_fix: float) -> None:
         if not self.valid:  # the first fix sets the position, at rest
@@ -57,8 +50,7 @@ class PositionEstimator:
             return
         if dt_fix <= 0.0:
             return
-        i = bisect.bisect_right(self._times, time_s) - 1
-        then = self._positions[max(i, 0)] if self._positions else tuple(self.p)
+        then = self._history.at(time_s) or tuple(self.p)
         w = math.sqrt(self.accel_density / (self.pos_std_m * math.sqrt(dt_fix)))
         gain_p, gain_v = math.sqrt(2.0) * w * dt_fix, w * w * dt_fix
         for k in range(3):

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import math
 
+from model.frames import quat_integrate
+
 DEG = math.pi / 180.0
 
 
@@ -63,15 +65,8 @@ class Sensfusion6:
         self.q = [qw * norm, qx * norm, qy * norm, qz * norm]
 
     def rotate_body(self, rx: float, ry: float, rz: float) -> None:
-        """q <- q (x) exp((rx, ry, rz) / 2): a small correction (rad) about the body axes."""
-        qw, qx, qy, qz = self.q
-        hx, hy, hz = 0.5 * rx, 0.5 * ry, 0.5 * rz
-        w = qw - qx * hx - qy * hy - qz * hz
-        x = qx + qw * hx + qy * hz - qz * hy
-        y = qy + qw * hy - qx * hz + qz * hx
-        z = qz + qw * hz + qx * hy - qy * hx
-        norm = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
-        self.q = [w * norm, x * norm, y * norm, z * norm]
+        """q <- q (x) Exp((rx, ry, rz)): a small correction (rad) about the body axes."""
+        self.q = list(quat_integrate(tuple(self.q), (rx, ry, rz), 1.0))
 
     def euler_rpy_deg(self) -> tuple[float, float, float]:
         """sensfusion6GetEulerRPY: roll, pitch (legacy sign), yaw in degrees."""

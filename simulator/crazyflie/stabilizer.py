@@ -32,19 +32,18 @@ detection, the 1 kHz loop run at the IMU's 500 Hz).
 
 from __future__ import annotations
 
-import bisect
 import math
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
 from link.messages import BatteryStatus, ExternalPose, ImuSample, PositionTarget, VehicleMode
 from model.config import Params, resolve
-from model.frames import euler_zyx_of
+from model.frames import attitude_error, euler_zyx_of
 from model.vehicle import GRAVITY_MPS2, Vehicle
 from simulator.crazyflie.attitude_controller import AttitudeController
 from simulator.crazyflie.battery import Battery
 from simulator.crazyflie.controller_pid import MODE_ABS, MODE_DISABLE, MODE_VELOCITY, ControllerPid, Setpoint
+from simulator.crazyflie.history import TimeHistory
 from simulator.crazyflie.motors import ThrustCurve
 from simulator.crazyflie.position_controller import PositionController
 from simulator.crazyflie.position_estimator import PositionEstimator
@@ -53,7 +52,6 @@ from simulator.crazyflie.sensfusion6 import Sensfusion6
 from simulator.firmware import MOTORS_OFF, BodyState, Firmware, FirmwareParams
 
 DEG_PER_RAD = 180.0 / math.pi
-HISTORY_LENGTH = 250  # estimator updates kept for external fixes: 1 s at 250 Hz, above any latency we model
 G_MPS2 = 9.81  # the firmware's G (physicalConstants.h GRAVITY_MAGNITUDE), for m/s^2 <-> g
 ATTITUDE_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS)
 LEVEL_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_VELOCITY)
@@ -133,6 +131,12 @@ def _position_gains(t) -> dict:
     return {**{k: t.vector(k, 3) for k in vectors}, **{k: t.number(k, minimum=0.0) for k in numbers}}
 
 
+def _legacy_rpy_deg(q) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (deg) of an FLU/ENU attitude in the firmware's legacy frame (pitch positive nose up)."""
+    roll, pitch, yaw = euler_zyx_of(q)
+    return roll * DEG_PER_RAD, -pitch * DEG_PER_RAD, yaw * DEG_PER_RAD
+
+
 def _deadband(value: float, threshold: float) -> float:
     """num.c deadband: 0 inside +-threshold, else shifted toward 0 by it."""
     if abs(value) < threshold:
@@ -184,8 +188,7 @@ class CrazyflieFirmware(Firmware):
         self.motor_pwm = (0, 0, 0, 0)
         self.motor_forces_n = (0.0, 0.0, 0.0, 0.0)
         # external pose fusion: the estimate's recent history (sample time, q) to meet each fix at its own time
-        self._history_t: deque[float] = deque(maxlen=HISTORY_LENGTH)
-        self._history_q: deque[list[float]] = deque(maxlen=HISTORY_LENGTH)
+        self._history = TimeHistory()  # (IMU sample time, attitude estimate) per estimator update
         self._gyro_density = vehicle.imu.gyro_noise_density
         self._last_ext_time_s: float | None = None
         self._last_ext_arrival_s = -math.inf
@@ -237,36 +240,22 @@ class CrazyflieFirmware(Firmware):
             self.rejected_commands += 1
             return
         self._last_ext_arrival_s = arrival_s
+        previous = self._last_ext_time_s
+        # time since the previous fix, capped: what each fix's correction is weighted by
+        dt = 0.0 if previous is None else min(max(pose.time_s - previous, 0.0), self.cf.ext_fresh_for_s)
         if all(math.isfinite(v) for v in pose.position_enu_m):
-            previous = self._last_ext_time_s
-            self.position.fuse(pose.position_enu_m, pose.time_s,
-                               0.0 if previous is None else min(max(pose.time_s - previous, 0.0),
-                                                                self.cf.ext_fresh_for_s))
-        if self._last_ext_time_s is None:
+            self.position.fuse(pose.position_enu_m, pose.time_s, dt)
+        if previous is None:
             self.fusion.q = [float(v) for v in q_ext]
             self._last_ext_time_s = pose.time_s
             return
-        dt = min(max(pose.time_s - self._last_ext_time_s, 0.0), self.cf.ext_fresh_for_s)
-        self._last_ext_time_s = max(self._last_ext_time_s, pose.time_s)
-        then = self._estimate_at(pose.time_s)
-        # error rotation from the estimate then to the fix, in the body frame: q_then^* (x) q_ext
-        w0, x0, y0, z0 = then
-        w1, x1, y1, z1 = q_ext
-        ew = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
-        ex = w0 * x1 - x0 * w1 - y0 * z1 + z0 * y1
-        ey = w0 * y1 + x0 * z1 - y0 * w1 - z0 * x1
-        ez = w0 * z1 - x0 * y1 + y0 * x1 - z0 * w1
-        sign = 2.0 if ew >= 0.0 else -2.0
+        self._last_ext_time_s = max(previous, pose.time_s)
+        then = self._history.at(pose.time_s) or self.fusion.q
+        # error rotation from the estimate then to the fix, in the body frame
         gain = self._gyro_density * math.sqrt(dt) / self.cf.ext_quat_std_rad
-        self.fusion.rotate_body(gain * sign * ex, gain * sign * ey, gain * sign * ez)
+        ex, ey, ez = attitude_error(tuple(then), q_ext)
+        self.fusion.rotate_body(gain * ex, gain * ey, gain * ez)
         self.external_poses += 1
-
-    def _estimate_at(self, time_s: float) -> list[float]:
-        times = self._history_t
-        if not times:
-            return self.fusion.q
-        i = bisect.bisect_right(times, time_s) - 1
-        return self._history_q[max(i, 0)]
 
     def take_imu(self, sample: ImuSample) -> None:
         self._imu_time_s = sample.time_s
@@ -290,8 +279,7 @@ class CrazyflieFirmware(Firmware):
         dt = self._estimator_dt_s
         fixes = self._imu_time_s - self._last_ext_arrival_s <= self.cf.ext_fresh_for_s
         self.fusion.update(self.gyro_dps, self.acc_g, dt, use_accelerometer=not fixes)
-        self._history_t.append(self._imu_time_s)
-        self._history_q.append(self.fusion.q)
+        self._history.append(self._imu_time_s, self.fusion.q)
         a = self.acc_g
         g = G_MPS2
         self.position.predict(self._imu_time_s, self.fusion.q, (a[0] * g, a[1] * g, a[2] * g), dt)
@@ -346,8 +334,7 @@ class CrazyflieFirmware(Firmware):
         return self._drive(self._through_pid(self._level_setpoint(0.0)))  # armed, idle: thrust 0
 
     def _attitude_setpoint(self) -> Setpoint:
-        roll, pitch, yaw = euler_zyx_of(self._sp_attitude)
-        return Setpoint(ATTITUDE_MODES, (roll * DEG_PER_RAD, -pitch * DEG_PER_RAD, yaw * DEG_PER_RAD),
+        return Setpoint(ATTITUDE_MODES, _legacy_rpy_deg(self._sp_attitude),
                         thrust_pwm=self._thrust_pwm(self._sp_thrust_n))
 
     def _level_setpoint(self, thrust_n: float) -> Setpoint:
@@ -371,10 +358,8 @@ class CrazyflieFirmware(Firmware):
 
     def _true_attitude(self):
         """Ablation: the body's true attitude (legacy roll, pitch, yaw deg) and rates (deg/s)."""
-        roll, pitch, yaw = euler_zyx_of(self._body.attitude_wxyz)
         w = self._body.rate_flu_radps
-        return ((roll * DEG_PER_RAD, -pitch * DEG_PER_RAD, yaw * DEG_PER_RAD),
-                (w[0] * DEG_PER_RAD, w[1] * DEG_PER_RAD, w[2] * DEG_PER_RAD))
+        return _legacy_rpy_deg(self._body.attitude_wxyz), (w[0] * DEG_PER_RAD, w[1] * DEG_PER_RAD, w[2] * DEG_PER_RAD)
 
     def _drive(self, uncapped) -> tuple[float, ...]:
         """Battery compensation, the cap, then the motors on the battery's true voltage."""

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from model.frames import rotate
 from model.vehicle import load_vehicle
 from simulator.variation import VehicleDraw, draw, load_variation
 from simulator.vehicle_sim import SimVehicle
@@ -63,7 +64,7 @@ def test_a_misaligned_imu_sees_gravity_tilted_by_its_misalignment():
     d = VehicleDraw(imu_misalignment_rad=(0.01, 0.0, 0.0))
     rows = d.misalignment_rows()
     g = (0.0, 0.0, 9.81)
-    seen = tuple(sum(rows[i][j] * g[j] for j in range(3)) for i in range(3))
+    seen = rotate(rows, *g)
     # a sensor rolled by +0.01 rad about x reads R^T (0, 0, g): the specific force appears rolled by -0.01 rad,
     # i.e. (0, g sin 0.01, g cos 0.01), as a level vehicle would read with its body rolled by +0.01 rad
     assert math.atan2(seen[1], seen[2]) == pytest.approx(0.01, abs=1e-9)
