@@ -2,8 +2,9 @@
 
 Takes in: link.messages.ImuSample (sample time on the vehicle clock; specific force FLU m/s^2, reading
 +g on z at rest; angular rate FLU rad/s) and link.messages.MocapPose (SAMPLE time; position ENU m;
-attitude wxyz body FLU -> world ENU), in any arrival order. Noise densities from model.vehicle.Vehicle.imu
-and model.vehicle.MocapRoom; tuning from estimator/params/eskf.toml (`EskfParams`).
+attitude wxyz body FLU -> world ENU), in any arrival order. What it assumes of its sensors from
+estimator.sensor_spec.SensorSpec (their data sheets, not the simulator's settings); the IMU's nominal rate;
+tuning from estimator/params/eskf.toml (`EskfParams`).
 Gives out: `Estimate` (position ENU m, velocity ENU m/s, attitude wxyz, bias-corrected body rate FLU
 rad/s, accelerometer and gyro biases, 15x15 error covariance and its standard deviations, health).
 
@@ -16,11 +17,11 @@ Nominal propagation over an IMU interval [t0, t1], dt = t1 - t0, trapezoidal in 
 Error transition, first order (Sola 2017 eq. 269), f = (f0 + f1)/2 - b_a, R = R(q0):
     F = I + dt A + dt^2/2 (dp rows):  dp <- dv: I;  dv <- dtheta: -R[f]x;  dv <- db_a: -R;
     dtheta <- dtheta: -[w]x;  dtheta <- db_g: -I;  and dp <- dtheta, db_a: -R[f]x dt^2/2, -R dt^2/2.
-Process noise from the continuous densities (s_a, s_g, s_ba, s_bg) of the vehicle, per axis:
+Process noise from the continuous densities (s_a, s_g, s_ba, s_bg) of the sensor spec, per axis:
     Q_pp = s_a^2 dt^3/3, Q_pv = s_a^2 dt^2/2, Q_vv = s_a^2 dt, Q_tt = s_g^2 dt, Q_ba = s_ba^2 dt,
     Q_bg = s_bg^2 dt (times noise.process_noise_variance_scale).
 Mocap measurement: z = [p_m - p ; Log(q^* (x) q_m)] = H dx + n, H = [I 0 0 0 0; 0 0 I 0 0],
-    R = diag(s_p^2 I3, s_theta^2 I3) of the room (times noise.mocap_noise_variance_scale).
+    R = diag(s_p^2 I3, s_theta^2 I3) of the sensor spec (times noise.mocap_noise_variance_scale).
 
 What filterpy does (one filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state):
 predict() (F and Q set on it) computes x = F x and P = F P F' + Q; update(z, H=H) computes y = z - H x,
@@ -79,6 +80,7 @@ from filterpy.kalman import predict as filterpy_predict
 from scipy.linalg.lapack import dgesv as lapack_gesv
 from scipy.stats import chi2
 
+from estimator.sensor_spec import SensorSpec
 from link.messages import ImuSample, MocapPose
 from model.config import Params, resolve
 from model.errors import UserError
@@ -90,7 +92,7 @@ from model.frames import (
     quat_to_rows,
     rotate,
 )
-from model.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
+from model.vehicle import GRAVITY_MPS2
 
 ERROR_STATE_LABELS = (
     "position_e_m", "position_n_m", "position_u_m",
@@ -131,7 +133,7 @@ _TRIM_CHUNK = 16
 
 @dataclass(frozen=True)
 class EskfParams:
-    """The filter's own tuning (estimator/params/eskf.toml); sensor noise comes from vehicle and room."""
+    """The filter's own tuning (estimator/params/eskf.toml); sensor noise comes from the SensorSpec."""
 
     process_noise_variance_scale: float
     mocap_noise_variance_scale: float
@@ -243,29 +245,27 @@ def _pose_valid(pose: MocapPose) -> bool:
 class ErrorStateKF:
     """The estimator. Feed add_imu / add_mocap in arrival order; read estimate() / predict_to()."""
 
-    def __init__(self, vehicle: Vehicle, mocap_room: MocapRoom, params: EskfParams | None = None):
+    def __init__(self, sensors: SensorSpec, imu_rate_hz: float, params: EskfParams | None = None):
         self.params = params if params is not None else load_eskf_params()
-        self.vehicle = vehicle
-        self.mocap_room = mocap_room
-        imu, prm = vehicle.imu, self.params
+        self.sensors = sensors
+        prm = self.params
         self._g = GRAVITY_MPS2
-        self._imu_period_s = 1.0 / imu.rate_hz
+        self._imu_period_s = 1.0 / imu_rate_hz
         scale = prm.process_noise_variance_scale
-        self._accel_psd = scale * imu.accel_noise_density**2
-        self._gyro_psd = scale * imu.gyro_noise_density**2
-        self._accel_bias_psd = scale * imu.accel_bias_random_walk**2
-        self._gyro_bias_psd = scale * imu.gyro_bias_random_walk**2
-        var_p = prm.mocap_noise_variance_scale * mocap_room.position_noise_m**2
-        var_t = prm.mocap_noise_variance_scale * mocap_room.attitude_noise_rad**2
+        self._accel_psd = scale * sensors.accel_noise_density**2
+        self._gyro_psd = scale * sensors.gyro_noise_density**2
+        self._accel_bias_psd = scale * sensors.accel_bias_random_walk**2
+        self._gyro_bias_psd = scale * sensors.gyro_bias_random_walk**2
+        var_p = prm.mocap_noise_variance_scale * sensors.mocap_position_sigma_m**2
+        var_t = prm.mocap_noise_variance_scale * sensors.mocap_attitude_sigma_rad**2
         if var_p <= 0.0 or var_t <= 0.0:
-            raise UserError(f"mocap room '{mocap_room.name}': position_noise_m and attitude_noise_rad "
-                            "must be positive for the estimator")
+            raise UserError(f"sensor spec '{sensors.name}': the mocap sigmas must be positive for the estimator")
         self._R = np.diag([var_p] * 3 + [var_t] * 3)
         self._H = np.zeros((N_MOCAP, N_ERROR))
         self._H[0:3, POSITION] = np.eye(3)
         self._H[3:6, ATTITUDE] = np.eye(3)
         self._gate_d2 = float(chi2.ppf(prm.gate_chi2_probability, N_MOCAP))
-        bias_var = [imu.accel_bias_initial_sigma**2] * 3 + [imu.gyro_bias_initial_sigma**2] * 3
+        bias_var = [sensors.accel_bias_initial_sigma**2] * 3 + [sensors.gyro_bias_initial_sigma**2] * 3
         velocity_var = [prm.initial_velocity_sigma_mps**2] * 3
         self._P0_diag = np.array([var_p] * 3 + velocity_var + [var_t] * 3 + bias_var)
         self._kf = KalmanFilter(dim_x=N_ERROR, dim_z=N_MOCAP)

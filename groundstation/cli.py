@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator.sensor_spec import DEFAULT_SENSOR_SPEC, load_sensor_spec
 from groundstation.child_process import die_with_parent
 from groundstation.planned import plan_track
 from groundstation.preflight import checked_world
@@ -73,6 +74,9 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
                         "crazyflie and for a ground station alone; crazyflie, the course model, with --firmware "
                         "ideal)")
     g.add_argument("--gains", default="gains", help="controller gains: name or TOML file")
+    g.add_argument("--sensor-spec", default=DEFAULT_SENSOR_SPEC,
+                   help="what the estimator assumes of IMU and mocap noise: name or TOML file "
+                        f"(default: {DEFAULT_SENSOR_SPEC}, the BMI088 data sheet and a Vicon room)")
     g.add_argument("--latency-compensation", action=argparse.BooleanOptionalAction, default=None,
                    help="predict the state to when each command will act (one-way latency from TIMESYNC), "
                         "holding the commands already sent (default: on in moments mode, off in attitude mode; "
@@ -180,10 +184,12 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
     if args.mode == "position" and getattr(args, "firmware", "crazyflie") != "crazyflie":
         raise UserError("argument --mode position: needs --firmware crazyflie (the ideal vehicle has no onboard "
                         "position controller)")
+    load_sensor_spec(args.sensor_spec)  # a bad file is one line here, before any process starts
     return SessionOptions(
         track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
         connection="zenoh", zenoh_options=zopts, prefix=args.prefix, vehicle_id=args.vehicle,
-        vehicle_model=args.vehicle_model, gains=args.gains, controller_variant=args.controller,
+        vehicle_model=args.vehicle_model, gains=args.gains, sensor_spec=args.sensor_spec,
+        controller_variant=args.controller,
         latency_compensation=(args.latency_compensation if args.latency_compensation is not None
                               else COMPENSATION_DEFAULT[args.mode]), log_dir=Path(args.log) if args.log else None,
         signing=signing_from_args(args), plan=plan,

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.eskf import ErrorStateKF
+from estimator.sensor_spec import DEFAULT_SENSOR_SPEC, load_sensor_spec
 from groundstation.clocks import LockstepClock, RealtimeClock
 from groundstation.compensation import LatencyCompensator
 from groundstation.controller import SE3Controller, load_gains
@@ -38,7 +39,7 @@ from groundstation.vehicle_link import VehicleLink
 from link.keys import VehicleKeys
 from link.mavlink.codec import ActuatorLimits
 from link.transports import open_transport
-from model.vehicle import load_mocap_room, load_vehicle
+from model.vehicle import load_vehicle
 from model.world import World
 
 log = logging.getLogger("cfstack.groundstation")
@@ -61,7 +62,7 @@ class SessionOptions:
     prefix: str = "cfstack"
     vehicle_id: int = 1
     vehicle_model: str = "crazyflie"
-    mocap_room: str = "vicon"
+    sensor_spec: str = DEFAULT_SENSOR_SPEC  # what the filter assumes of IMU and mocap (estimator/params/sensors)
     gains: str = "gains"
     controller_variant: str | None = None  # None: the gains file's
     latency_compensation: bool = False
@@ -106,7 +107,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
                 clock_transport = None
                 clock = RealtimeClock(period, link)
             clock_box["clock"] = clock
-            estimator = ErrorStateKF(vehicle, load_mocap_room(opts.mocap_room))
+            estimator = ErrorStateKF(load_sensor_spec(opts.sensor_spec), vehicle.imu.rate_hz)
             controller = SE3Controller(vehicle, load_gains(opts.gains), variant=opts.controller_variant)
             mission = Mission(params, opts.track, opts.goal_enu_m, world, vehicle.collision_radius_m,
                               allow_reset=opts.allow_reset)

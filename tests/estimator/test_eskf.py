@@ -24,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from synthetic import Flight, LinkFaults, circle_kinematics, flat_attitude, simulate  # noqa: E402
 
 from estimator.eskf import ErrorStateKF, load_eskf_params  # noqa: E402
+from estimator.sensor_spec import SensorSpec  # noqa: E402
 from link.messages import ImuSample, MocapPose  # noqa: E402
 from model.errors import ConfigError, UserError  # noqa: E402
 from model.frames import attitude_error  # noqa: E402
@@ -31,6 +32,8 @@ from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle  # noqa: E
 
 VEHICLE = load_vehicle("crazyflie")
 ROOM = load_mocap_room("vicon")
+# The filter is told the simulated noise exactly here: these tests check its mathematics.
+SPEC = SensorSpec.matching_simulation(VEHICLE, ROOM)
 CRUISE_FROM_S = 3.5  # after the 1 s hover and the 2 s speed ramp of the default Flight, plus 0.5 s
 
 
@@ -39,7 +42,7 @@ def fly(run, kf: ErrorStateKF | None = None, on_arrival: bool = False, events=No
 
     on_arrival: pretend each mocap frame was sampled when it arrived (the naive, uncompensated filter).
     """
-    kf = kf if kf is not None else ErrorStateKF(VEHICLE, ROOM)
+    kf = kf if kf is not None else ErrorStateKF(SPEC, VEHICLE.imu.rate_hz)
     estimates, accepted = [], {}
     for arrival_s, msg in run.events if events is None else events:
         if isinstance(msg, ImuSample):
@@ -140,7 +143,7 @@ def test_nees_within_chi_square_band():
     nees6, nees15 = [], []
     for seed in range(runs):
         run = simulate(Flight(duration_s=duration), imu, ROOM, np.random.default_rng(100 + seed))
-        kf = ErrorStateKF(VEHICLE, ROOM)
+        kf = ErrorStateKF(SPEC, VEHICLE.imu.rate_hz)
         pending = list(sample_times)
         run_nees15 = []
         for _, msg in run.events:
@@ -247,7 +250,7 @@ def test_state_does_not_depend_on_how_often_it_is_read():
     faults = LinkFaults(mocap_latency_s=0.02, mocap_jitter_s=0.015, imu_loss_probability=0.02,
                         imu_swap_probability=0.02)
     run = simulate(Flight(duration_s=3.0), VEHICLE.imu, ROOM, np.random.default_rng(45), faults)
-    every, sparse = ErrorStateKF(VEHICLE, ROOM), ErrorStateKF(VEHICLE, ROOM)
+    every, sparse = ErrorStateKF(SPEC, VEHICLE.imu.rate_hz), ErrorStateKF(SPEC, VEHICLE.imu.rate_hz)
     compared = 0
     for k, (_, msg) in enumerate(run.events):
         for kf in (every, sparse):
@@ -350,14 +353,14 @@ def test_predict_to_compensates_latency_without_touching_the_filter():
 
 
 def test_before_the_first_pose_nothing_is_claimed():
-    kf = ErrorStateKF(VEHICLE, ROOM)
+    kf = ErrorStateKF(SPEC, VEHICLE.imu.rate_hz)
     kf.add_imu(ImuSample(0.0, (0.0, 0.0, GRAVITY_MPS2), (0.0, 0.0, 0.0)))
     e = kf.estimate()
     assert not e.healthy and not e.health.initialised and np.all(np.isnan(e.position_enu_m))
 
 
 def test_first_pose_initialises_at_rest_and_duplicates_stale_invalid_are_counted():
-    kf = ErrorStateKF(VEHICLE, ROOM)
+    kf = ErrorStateKF(SPEC, VEHICLE.imu.rate_hz)
     assert kf.add_mocap(MocapPose(1.0, 1, (0.5, -0.2, 1.0), (1.0, 0.0, 0.0, 0.0)))
     hover = ImuSample(1.002, (0.0, 0.0, GRAVITY_MPS2), (0.0, 0.0, 0.0))
     kf.add_imu(hover)
