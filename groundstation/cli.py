@@ -29,6 +29,7 @@ import numpy as np
 
 from estimator.sensor_spec import DEFAULT_SENSOR_SPEC, load_sensor_spec
 from groundstation.child_process import die_with_parent
+from groundstation.controller import VARIANTS as CONTROLLER_VARIANTS
 from groundstation.planned import plan_track
 from groundstation.preflight import checked_world
 from groundstation.session import DEFAULT_RATE_HZ, SessionOptions, dump_json, human_summary, run_session
@@ -81,7 +82,7 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
                    help="predict the state to when each command will act (one-way latency from TIMESYNC), "
                         "holding the commands already sent (default: on in moments mode, off in attitude mode; "
                         "see README, stability map)")
-    g.add_argument("--controller", choices=("report", "full"),
+    g.add_argument("--controller", choices=CONTROLLER_VARIANTS,
                    help="SE(3) law: the lab report's (w_des = 0) or the full geometric controller with angular "
                         "velocity/acceleration feed-forward (default: the gains file's variant)")
     g.add_argument("--extpose", action=argparse.BooleanOptionalAction, default=None,

@@ -1,162 +1,168 @@
-"""The sweep's runner: each cell is one `cfstack fly` subprocess, at most --jobs at a time.
+"""The sweep's runner: cells as tasks on dask.distributed, each a whole lockstep flight on its worker.
 
-Takes in: SweepOptions and the (cell, radio profile file) pairs still to fly.
-Gives out: a CellResult per cell as it finishes (on_done). Each cell is
-`cfstack fly WORLD --mode M --radio PROFILE --clock lockstep --seed N --json --log DIR` in its own
-process session (lockstep + seed: the same cell gives the same flight on a busy machine), its stdout and
-stderr kept in the cell's log folder. A fly that exits with code 2 (bad input) aborts the sweep with its
-one-line error; a crash, a timeout or a failsafe is a normal, failed cell. A KeyboardInterrupt stops
-every running flight before it propagates.
+Takes in: SweepOptions (--jobs for a LocalCluster, or --scheduler tcp://HOST:PORT of a running cluster)
+and the CellJobs still to fly.
+Gives out: a row per flight as it finishes (on_row), progress counts (on_tick), the dashboard address.
+
+Retries. A flight that gave no summary (crash), hit the wall-clock limit, raised, or whose worker was lost
+is flown once more; its row says how many attempts it took and whether a worker was lost. The row of a
+flight that fails again records the failure ("crash", "wall_timeout", "lost_worker", "error"). A cell whose
+fly exits with code 2 (bad input) stops the sweep with fly's one-line error. A KeyboardInterrupt cancels
+what is queued; running flights on a LocalCluster stop with their workers (each fly dies with its parent).
 """
 
 from __future__ import annotations
 
-import json
-import os
-import signal
-import subprocess
-import sys
+import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from pathlib import Path
+from dataclasses import dataclass, field, replace
 
-from groundstation.child_process import die_with_parent
-from groundstation.sweep.grid import Cell, SweepOptions
-from groundstation.sweep.table import CellResult
+import dask
+from distributed import Client, Future, LocalCluster
+
+from groundstation.sweep.cell_task import STARTED_TOPIC, CellJob, fly_cell, job_key
+from groundstation.sweep.grid import SweepOptions
+from groundstation.sweep.table import make_row
 from model.errors import UserError
 
-POLL_S = 0.2  # how often the scheduler looks at its children and redraws the bar
-SECOND_SIGINT_AFTER_S = 0.5  # fly lands on the first Ctrl-C and disarms at once on the second
-STOP_GRACE_S = 10.0  # after the second SIGINT, how long a fly child gets to stop its emulator and exit
-BAD_INPUT_EXIT_CODE = UserError.exit_code  # what `cfstack fly` returns for bad input (2)
+POLL_S = 0.25  # how often the client looks at its futures and redraws the bar
+CONNECT_TIMEOUT_S = 20.0
+MAX_ATTEMPTS = 2  # the first flight and one retry
+RETRIED_STATUSES = ("crash", "wall_timeout")
+log = logging.getLogger("cfstack.sweep")
 
 
-def _float_or_none(value) -> float | None:
-    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
-
-
-def _last_line(text: str) -> str:
-    lines = [line for line in text.strip().splitlines() if line.strip()]
-    return lines[-1].strip() if lines else ""
-
-
-def result_from_fly(cell: Cell, exit_code: int | None, stdout: str, stderr: str, wall_s: float, log_dir: Path,
-                    timed_out: bool = False) -> CellResult:
-    """One cell's row from its fly subprocess; a UserError (abort the sweep) for exit code 2, bad input."""
-    if exit_code == BAD_INPUT_EXIT_CODE and not timed_out:
-        raise UserError(f"cell {cell.label}: {_last_line(stderr) or 'cfstack fly exited with code 2 (bad input)'}")
-    try:
-        summary = json.loads(stdout) if stdout.strip() else None
-    except json.JSONDecodeError:
-        summary = None
-    if not isinstance(summary, dict) or "result" not in summary:
-        reason = _last_line(stderr)[:200] or None
-        return CellResult(cell, success=False, result="timeout" if timed_out else "crash", reason=reason,
-                          wall_time_s=wall_s, exit_code=exit_code, log_dir=str(log_dir))
-    reached = summary.get("reached_goal") is True
-    failure = summary.get("failure") or {}  # a crash's or failsafe's one line (groundstation.grading)
-    collided = summary.get("collided") is True
-    # Stopped for its timeout, fly may still land and print a summary ("aborted"): the cell timed out.
-    return CellResult(
-        cell, success=reached and not collided and exit_code == 0 and not timed_out,
-        result="timeout" if timed_out else str(summary["result"]),
-        reached_goal=reached, collided=collided, reason=failure.get("reason") or summary.get("failsafe_reason"),
-        rms_tracking_error_m=_float_or_none(summary.get("rms_tracking_error_m")),
-        max_tracking_error_m=_float_or_none(summary.get("max_tracking_error_m")),
-        min_clearance_m=_float_or_none(summary.get("min_clearance_m")),
-        flight_time_s=_float_or_none(summary.get("flight_time_s")),
-        wall_time_s=wall_s, exit_code=exit_code, log_dir=str(log_dir))
-
-
-def fly_argv(opts: SweepOptions, cell: Cell, profile: Path, log_dir: Path) -> list[str]:
-    """The `cfstack fly` command line of one cell (run as `python -m cfstack`, the same program)."""
-    argv = [sys.executable, "-m", "cfstack", "fly"]
-    if opts.world:
-        argv.append(str(Path(opts.world).resolve()))
-    argv += ["--mode", cell.mode, "--radio", str(profile.resolve()), "--clock", "lockstep",
-             "--seed", str(opts.seed), "--firmware", opts.firmware,
-             "--vehicle-draw", opts.vehicle_draw, "--json", "--log", str(log_dir.resolve())]
-    if opts.latency_compensation is not None:
-        argv.append("--latency-compensation" if opts.latency_compensation else "--no-latency-compensation")
-    return argv + list(opts.extra)
+@dataclass
+class Progress:
+    done: int = 0
+    failed: int = 0  # rows whose flight did not succeed (any reason)
+    retried: int = 0  # flights started again (crash, wall-clock timeout, error or lost worker)
+    lost_workers: int = 0  # workers that left the cluster while flying one of ours
+    running: int = 0
 
 
 @dataclass
 class _Flight:
-    """One running `cfstack fly` child."""
+    job: CellJob
+    future: Future
+    worker: str | None = None  # where it said it started
+    worker_lost: bool = False
+    previous_lost: bool = False
 
-    cell: Cell
-    log_dir: Path
-    proc: subprocess.Popen
-    started_s: float
-    stdout_path: Path
-    stderr_path: Path
 
-    @staticmethod
-    def start(opts: SweepOptions, cell: Cell, profile: Path) -> _Flight:
-        log_dir = opts.out / "cells" / cell.slug
-        log_dir.mkdir(parents=True, exist_ok=True)
-        stdout_path, stderr_path = log_dir / "fly_stdout.json", log_dir / "fly_stderr.txt"
-        # Files, not pipes: a pipe nobody reads during a flight could fill and stall it. A session of
-        # its own: the terminal's Ctrl-C reaches only the sweep, which then stops each flight in order.
-        with stdout_path.open("w") as out, stderr_path.open("w") as err:
-            proc = subprocess.Popen(fly_argv(opts, cell, profile, log_dir), stdin=subprocess.DEVNULL, stdout=out,
-                                    stderr=err, start_new_session=True, preexec_fn=die_with_parent)
-        return _Flight(cell, log_dir, proc, time.monotonic(), stdout_path, stderr_path)
+@dataclass
+class DaskRunner:
+    opts: SweepOptions
+    client: Client = field(init=False)
+    cluster: LocalCluster | None = field(init=False, default=None)
+    started_on: dict[str, str] = field(init=False, default_factory=dict)  # task key -> worker address
 
-    def signal_group(self, sig: int) -> None:
-        try:
-            os.killpg(self.proc.pid, sig)  # fly and its emulator child (same process group)
-        except ProcessLookupError:
-            pass
-
-    def stop(self) -> None:
-        """Ctrl-C twice to fly alone (its first lands, the second disarms at once; then it stops its own
-        emulator), then SIGKILL to both after STOP_GRACE_S. The cell is discarded: no need to land it.
-        Not SIGINT to the group: a lockstep emulator stopped first would leave fly waiting for its clock."""
-        for _ in range(2):
-            if self.proc.poll() is not None:
-                return
-            self.proc.send_signal(signal.SIGINT)
+    def __post_init__(self) -> None:
+        if self.opts.scheduler:
             try:
-                self.proc.wait(timeout=SECOND_SIGINT_AFTER_S)
-            except subprocess.TimeoutExpired:
-                pass
+                self.client = Client(self.opts.scheduler, timeout=CONNECT_TIMEOUT_S)
+            except (OSError, TimeoutError, ValueError) as err:
+                raise UserError(f"--scheduler {self.opts.scheduler}: no dask scheduler answered ({err}); start one "
+                                "with `dask scheduler` and a worker with `dask worker ADDRESS`") from None
+            try:
+                self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+            except TimeoutError:
+                self.client.close()
+                raise UserError(f"--scheduler {self.opts.scheduler}: the scheduler has no worker after "
+                                f"{CONNECT_TIMEOUT_S:g} s; start one with `dask worker ADDRESS`") from None
+            self._listen()
+            return
+        # One single-threaded worker process per flight slot: a flight is two busy processes of its own.
+        with dask.config.set({"distributed.worker.daemon": False}):
+            self.cluster = LocalCluster(n_workers=self.opts.jobs, threads_per_worker=1, processes=True,
+                                        dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
+        self.client = Client(self.cluster)
+        self._listen()
+
+    def _listen(self) -> None:
+        def started(event) -> None:  # runs on the client's event loop: (time, message)
+            message = event[1]
+            self.started_on[message["key"]] = message["worker"]
+
+        self.client.subscribe_topic(STARTED_TOPIC, started)
+
+    @property
+    def dashboard(self) -> str:
         try:
-            self.proc.wait(timeout=STOP_GRACE_S)
-        except subprocess.TimeoutExpired:
-            self.signal_group(signal.SIGKILL)
-            self.proc.wait()
+            return self.client.dashboard_link
+        except Exception:  # noqa: BLE001 -- no dashboard (bokeh missing on the scheduler): say so, don't fail
+            return "not available"
 
-    def result(self, timed_out: bool) -> CellResult:
-        return result_from_fly(self.cell, self.proc.returncode, self.stdout_path.read_text(),
-                               self.stderr_path.read_text(), time.monotonic() - self.started_s, self.log_dir,
-                               timed_out=timed_out)
+    def workers(self) -> int:
+        return len(self.client.scheduler_info().get("workers", {}))
 
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
 
-def run_cells(opts: SweepOptions, todo: Sequence[tuple[Cell, Path]], on_done: Callable[[CellResult], None],
-              on_tick: Callable[[], None] = lambda: None) -> None:
-    """Fly every (cell, profile), at most opts.jobs at a time; on_done(result) as each finishes.
+    def _submit(self, job: CellJob) -> Future:
+        return self.client.submit(fly_cell, job, key=job_key(job), pure=False)
 
-    A KeyboardInterrupt or a bad-input UserError stops every running flight before it propagates.
-    """
-    pending = list(reversed(todo))
-    running: list[_Flight] = []
-    try:
-        while pending or running:
-            while pending and len(running) < opts.jobs:
-                cell, profile = pending.pop()
-                running.append(_Flight.start(opts, cell, profile))
-            time.sleep(POLL_S)
-            for flight in list(running):
-                timed_out = flight.proc.poll() is None and time.monotonic() - flight.started_s > opts.timeout_s
-                if timed_out:
-                    flight.stop()
-                if flight.proc.poll() is not None:
-                    running.remove(flight)
-                    on_done(flight.result(timed_out))
-            on_tick()
-    finally:
-        for flight in running:
-            flight.stop()
+    def run(self, jobs: Sequence[CellJob], on_row: Callable[[dict], None],
+            on_tick: Callable[[Progress], None] = lambda p: None) -> Progress:
+        """Fly every job; on_row(row) as each finishes (after its retry, if any)."""
+        progress = Progress()
+        flights = [_Flight(job, self._submit(job)) for job in jobs]
+        try:
+            while flights:
+                self._watch_workers(flights, progress)
+                for flight in [f for f in flights if f.future.done()]:
+                    flights.remove(flight)
+                    again = self._finish(flight, on_row, progress)
+                    if again is not None:
+                        flights.append(again)
+                progress.running = sum(1 for f in flights if f.worker is not None)
+                on_tick(progress)
+                if flights:
+                    time.sleep(POLL_S)
+        finally:
+            if flights:
+                self.client.cancel([f.future for f in flights], force=True)
+        return progress
+
+    def _watch_workers(self, flights: list[_Flight], progress: Progress) -> None:
+        """A flight whose worker left the cluster after it started flying there lost its worker."""
+        alive = set(self.client.scheduler_info().get("workers", {}))
+        lost_now = set()
+        for flight in flights:
+            flight.worker = self.started_on.get(flight.future.key, flight.worker)
+            if flight.worker is not None and flight.worker not in alive and not flight.worker_lost:
+                flight.worker_lost = True
+                lost_now.add(flight.worker)
+                log.warning("worker %s lost while flying %s", flight.worker, flight.job.cell.label)
+                self.started_on.pop(flight.future.key, None)  # dask may start it again elsewhere
+        progress.lost_workers += len(lost_now)
+
+    def _finish(self, flight: _Flight, on_row: Callable[[dict], None], progress: Progress) -> _Flight | None:
+        """Record a finished future, or start its retry (returned)."""
+        job = flight.job
+        lost = flight.worker_lost or flight.previous_lost
+        if flight.future.status == "finished":
+            measured = flight.future.result()
+            if measured.get("cell_status") == "bad_input":
+                raise UserError(f"cell {job.cell.label}: {measured.get('reason')}")
+            retry = measured.get("cell_status") in RETRIED_STATUSES
+        else:  # the task raised, or dask gave up on it after losing its worker (KilledWorker)
+            error = flight.future.exception()
+            status = "lost_worker" if flight.worker_lost or type(error).__name__ == "KilledWorker" else "error"
+            measured = {"cell_status": status, "success": False, "result": status,
+                        "reason": f"{type(error).__name__}: {error}"[:200]}
+            retry = True
+        if retry and job.attempt < MAX_ATTEMPTS:
+            progress.retried += 1
+            again = replace(job, attempt=job.attempt + 1)
+            return _Flight(again, self._submit(again), previous_lost=lost)
+        # A flight dask moved to another worker by itself (its worker left) was flown twice.
+        rescheduled = flight.worker_lost and flight.future.status == "finished"
+        row = make_row(job.cell, measured, attempts=job.attempt + int(rescheduled), worker_lost=lost)
+        progress.done += 1
+        progress.failed += 0 if row["success"] else 1
+        on_row(row)
+        return None

@@ -1,108 +1,151 @@
-"""The sweep's result table: one row per flown cell, the CSV it lives in, and what it says.
+"""The sweep's result table: one row per flight, the CSV and Parquet files it lives in, and what it says.
 
-Takes in: cell results (from the runner) and CSV files of earlier runs (--resume).
-Gives out: sweep.csv (CSV_COLUMNS; rewritten atomically after every cell, so a kill leaves a valid file),
-the text table per mode, and per mode the largest one-way latency it survives at 0 % and 20 % loss.
-"Survives" is conservative: success (goal reached, no collision) in that cell AND in every cell of lower
-latency at the same loss, so a lucky cell past a failure does not count.
+Takes in: rows (a cell's axes, its seed and what its flight measured: groundstation.sweep.cell_task) and
+the CSV of an earlier run (--resume).
+Gives out: sweep.csv and sweep.parquet (COLUMNS; both rewritten atomically after every finished flight, so
+a kill or Ctrl-C leaves two consistent files), the per-cell aggregates over seeds (success rate, spread of
+the tracking error), the text table per mode, and per mode the largest one-way latency survived at 0 % and
+20 % loss. "Survives" is conservative: every seed succeeded (goal reached, no collision) in that cell AND
+in every cell of lower latency at the same loss, so a lucky cell past a failure does not count.
 """
 
 from __future__ import annotations
 
 import csv
-import json
 import os
+import statistics
+from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
-from groundstation.sweep.grid import Cell, SweepOptions, _num
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from groundstation.sweep.grid import Cell, num
 from model.errors import UserError
 
-REPORT_LOSSES_PCT = (0.0, 20.0)  # the issue asks for the survived latency at these losses
-CSV_COLUMNS = ("mode", "latency_ms", "loss_pct", "success", "result", "reached_goal", "collided", "reason",
-               "rms_tracking_error_m", "max_tracking_error_m", "min_clearance_m", "flight_time_s", "wall_time_s",
-               "exit_code", "log_dir")
-SETTINGS_CHECKED_ON_RESUME = ("world", "seed", "radio_base", "extra", "latency_compensation")
+REPORT_LOSSES_PCT = (0.0, 20.0)  # the stability map's headline: survived latency at these losses
+CELL_COLUMNS = Cell.field_names()
+OUTCOME_COLUMNS = ("cell_status", "attempts", "worker_lost", "success", "result", "reached_goal", "collided", "reason",
+                   "rms_tracking_error_m", "max_tracking_error_m", "min_clearance_m", "flight_time_s",
+                   "uplink_delivery", "downlink_delivery", "rtt_ms_p50", "rtt_ms_p99", "wall_time_s", "exit_code",
+                   "worker", "log_dir")
+COLUMNS = CELL_COLUMNS + OUTCOME_COLUMNS
+_TYPES = {"seed": int, "attempts": int, "exit_code": int, "success": bool, "reached_goal": bool, "collided": bool,
+          "worker_lost": bool, "latency_ms": float, "jitter_ms": float, "loss_pct": float, "burst_frames": float,
+          "rms_tracking_error_m": float, "max_tracking_error_m": float, "min_clearance_m": float,
+          "flight_time_s": float, "uplink_delivery": float, "downlink_delivery": float, "rtt_ms_p50": float,
+          "rtt_ms_p99": float, "wall_time_s": float}
+_ARROW = {int: pa.int64(), float: pa.float64(), bool: pa.bool_(), str: pa.string()}
+SCHEMA = pa.schema([(c, _ARROW[_TYPES.get(c, str)]) for c in COLUMNS])
 
 
-@dataclass
-class CellResult:
-    cell: Cell
-    success: bool  # reached the goal without a collision
-    result: str  # fly's result, or "crash" / "timeout" when it gave none
-    reached_goal: bool = False
-    collided: bool = False
-    reason: str | None = None  # fly's failsafe_reason, or the last stderr line of a crash or timeout
-    rms_tracking_error_m: float | None = None
-    max_tracking_error_m: float | None = None
-    min_clearance_m: float | None = None
-    flight_time_s: float | None = None
-    wall_time_s: float | None = None  # of the whole fly subprocess (emulator start to exit)
-    exit_code: int | None = None
-    log_dir: str = ""
-
-    def to_row(self) -> dict[str, str]:
-        values = {"mode": self.cell.mode, "latency_ms": self.cell.latency_ms, "loss_pct": self.cell.loss_pct,
-                  **{k: getattr(self, k) for k in CSV_COLUMNS[3:]}}
-        return {k: _csv_text(v) for k, v in values.items()}
-
-    @staticmethod
-    def from_row(row: Mapping[str, str], where: str) -> CellResult:
-        try:
-            cell = Cell(row["mode"], float(row["latency_ms"]), float(row["loss_pct"]))
-            return CellResult(
-                cell=cell, success=_csv_bool(row["success"]), result=row["result"],
-                reached_goal=_csv_bool(row["reached_goal"]), collided=_csv_bool(row["collided"]),
-                reason=row["reason"] or None,
-                **{k: _csv_float(row[k]) for k in ("rms_tracking_error_m", "max_tracking_error_m", "min_clearance_m",
-                                                   "flight_time_s", "wall_time_s")},
-                exit_code=int(row["exit_code"]) if row["exit_code"] else None, log_dir=row["log_dir"])
-        except (KeyError, ValueError, TypeError) as err:
-            raise UserError(f"{where}: malformed row ({err}); remove the file or use another --out") from None
+def make_row(cell: Cell, measured: Mapping, attempts: int, worker_lost: bool) -> dict:
+    """One flight's row: its axes, then what it measured (absent measures are None)."""
+    row = {c: getattr(cell, c) for c in CELL_COLUMNS}
+    row.update({c: measured.get(c) for c in OUTCOME_COLUMNS})
+    row.update(attempts=attempts, worker_lost=worker_lost, success=bool(measured.get("success")),
+               reached_goal=bool(measured.get("reached_goal")), collided=bool(measured.get("collided")))
+    return row
 
 
-def _csv_text(value) -> str:
+def cell_of(row: Mapping) -> Cell:
+    return Cell(**{c: row[c] for c in CELL_COLUMNS})
+
+
+def done(row: Mapping) -> bool:
+    """A row that --resume keeps: the flight was flown (whatever its outcome). Crashes, wall-clock timeouts
+    and lost workers (after their retry) are flown again."""
+    return row.get("cell_status") == "flown"
+
+
+def _text(value) -> str:
     if value is None:
         return ""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, float):
-        return _num(value)
+        return num(value)
     return str(value)
 
 
-def _csv_bool(text: str) -> bool:
-    if text not in ("true", "false"):
-        raise ValueError(f"expected true or false, got {text!r}")
-    return text == "true"
+def _parse(column: str, text: str):
+    kind = _TYPES.get(column, str)
+    if kind is str:
+        return text if text or column in CELL_COLUMNS else None
+    if text == "":
+        return None
+    if kind is bool:
+        if text not in ("true", "false"):
+            raise ValueError(f"{column}: expected true or false, got {text!r}")
+        return text == "true"
+    return kind(text)
 
 
-def _csv_float(text: str) -> float | None:
-    return float(text) if text else None
-
-
-def read_csv(path: Path) -> list[CellResult]:
+def read_csv(path: Path) -> list[dict]:
     if not path.is_file():
         return []
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) != CSV_COLUMNS:
-            raise UserError(f"{path}: not a sweep table (columns differ); remove it or use another --out")
-        return [CellResult.from_row(row, f"{path}:{i + 2}") for i, row in enumerate(reader)]
+        if tuple(reader.fieldnames or ()) != COLUMNS:
+            raise UserError(f"{path}: not a sweep table of this version (columns differ); remove it or use another "
+                            "--out")
+        rows = []
+        for i, raw in enumerate(reader):
+            try:
+                rows.append({c: _parse(c, raw[c]) for c in COLUMNS})
+            except (KeyError, ValueError, TypeError) as err:
+                raise UserError(f"{path}:{i + 2}: malformed row ({err}); remove the file or use another --out") \
+                    from None
+    return rows
 
 
-def write_csv(path: Path, results: Iterable[CellResult], modes: Sequence[str]) -> None:
-    """The whole table, sorted (mode, loss, latency), replaced atomically: a kill leaves a valid file."""
-    order = {m: i for i, m in enumerate(modes)}
-    rows = sorted(results, key=lambda r: (order.get(r.cell.mode, len(order)), r.cell.mode,
-                                          r.cell.loss_pct, r.cell.latency_ms))
-    tmp = path.with_suffix(".csv.tmp")
+def _sorted(rows: Iterable[Mapping]) -> list[Mapping]:
+    return sorted(rows, key=lambda r: tuple((v is None, v) for v in (r[c] for c in CELL_COLUMNS)))
+
+
+def write_tables(csv_path: Path, rows: Iterable[Mapping]) -> None:
+    """sweep.csv and sweep.parquet beside it, sorted by the axes, each replaced atomically."""
+    ordered = _sorted(rows)
+    tmp = csv_path.with_suffix(".csv.tmp")
     with tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS)
+        writer = csv.DictWriter(f, fieldnames=COLUMNS)
         writer.writeheader()
-        writer.writerows(r.to_row() for r in rows)
-    os.replace(tmp, path)
+        writer.writerows({c: _text(r[c]) for c in COLUMNS} for r in ordered)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, csv_path)
+    parquet = csv_path.with_suffix(".parquet")
+    tmp = parquet.with_suffix(".parquet.tmp")
+    pq.write_table(pa.Table.from_pylist([dict(r) for r in ordered], schema=SCHEMA), tmp)
+    os.replace(tmp, parquet)
+
+
+# -- aggregates over seeds ------------------------------------------------------------------------------------
+
+AXES_BUT_SEED = tuple(c for c in CELL_COLUMNS if c != "seed")
+
+
+def cell_key(row: Mapping) -> tuple:
+    """A cell without its seed: the unit the stability map aggregates over."""
+    return tuple(row[c] for c in AXES_BUT_SEED)
+
+
+def aggregate(rows: Iterable[Mapping]) -> dict[tuple, dict]:
+    """Per cell (all axes but the seed): seeds flown, successes, success rate, and the tracking error's
+    median and spread (sample standard deviation over the successful seeds; None below two)."""
+    groups: dict[tuple, list[Mapping]] = defaultdict(list)
+    for row in rows:
+        if done(row):
+            groups[cell_key(row)].append(row)
+    out = {}
+    for key, members in groups.items():
+        errors = [r["max_tracking_error_m"] for r in members if r["success"] and r["max_tracking_error_m"] is not None]
+        successes = sum(1 for r in members if r["success"])
+        out[key] = {"flights": len(members), "successes": successes, "success_rate": successes / len(members),
+                    "max_error_median_m": statistics.median(errors) if errors else None,
+                    "max_error_spread_m": statistics.stdev(errors) if len(errors) >= 2 else None}
+    return out
 
 
 def largest_survived_latency(outcomes: Mapping[float, bool | None]) -> float | None:
@@ -118,62 +161,76 @@ def largest_survived_latency(outcomes: Mapping[float, bool | None]) -> float | N
     return survived
 
 
-def outcomes_at(results: Mapping[tuple[str, float, float], CellResult], opts: SweepOptions, mode: str,
-                loss_pct: float) -> dict[float, bool | None]:
-    return {lat: (r.success if (r := results.get((mode, lat, loss_pct))) else None) for lat in opts.latencies_ms}
+def panels(rows: Sequence[Mapping]) -> dict[tuple, dict[tuple[float, float], dict]]:
+    """Latency x loss maps, one per combination of the other axes (mode first): panel key -> (latency, loss)
+    -> aggregate. Panel keys are (mode, world, radio, jitter, burst, controller, draw)."""
+    out: dict[tuple, dict] = defaultdict(dict)
+    for key, agg in aggregate(rows).items():
+        axes = dict(zip(AXES_BUT_SEED, key, strict=True))
+        panel = (axes["mode"], axes["world"], axes["radio"], axes["jitter_ms"], axes["burst_frames"],
+                 axes["controller"], axes["vehicle_draw"])
+        out[panel][(axes["latency_ms"], axes["loss_pct"])] = agg
+    return dict(sorted(out.items()))
 
 
-def survival_lines(results: Mapping[tuple[str, float, float], CellResult], opts: SweepOptions) -> list[str]:
-    """Per mode: 'survived latency, attitude mode: 60 ms at 0% loss, 20 ms at 20% loss'."""
+def panel_title(panel: tuple, varying: Sequence[int]) -> str:
+    mode, world, radio, jitter, burst, controller, draw = panel
+    parts = [f"{mode} mode"]
+    names = {1: f"world {Path(world).stem if world else 'empty'}", 2: f"radio {Path(radio).stem}",
+             3: f"jitter {num(jitter)} ms", 4: f"burst {num(burst)} frames", 5: f"controller {controller or 'gains'}",
+             6: f"draw {draw}"}
+    parts += [names[i] for i in varying if i in names]
+    return ", ".join(parts)
+
+
+def varying_axes(panel_keys: Iterable[tuple]) -> list[int]:
+    keys = list(panel_keys)
+    return [i for i in range(1, 7) if len({k[i] for k in keys}) > 1]
+
+
+def survival_lines(rows: Sequence[Mapping]) -> list[str]:
+    """Per panel: 'survived latency, attitude mode: 60 ms at 0% loss, 20 ms at 20% loss'."""
+    maps = panels(rows)
+    varying = varying_axes(maps)
     lines = []
-    for mode in opts.modes:
+    for panel, cells in maps.items():
         parts = []
         for loss in REPORT_LOSSES_PCT:
-            if loss not in opts.losses_pct:
-                parts.append(f"not swept at {_num(loss)}% loss")
+            outcomes = {lat: agg["success_rate"] == 1.0 for (lat, ls), agg in cells.items() if ls == loss}
+            if not outcomes:
+                parts.append(f"not swept at {num(loss)}% loss")
                 continue
-            outcomes = outcomes_at(results, opts, mode, loss)
             survived = largest_survived_latency(outcomes)
-            if survived is not None:
-                text = f"{_num(survived)} ms"
-            else:
-                text = "none" if outcomes[min(outcomes)] is False else "unknown (not flown)"
-            parts.append(f"{text} at {_num(loss)}% loss")
-        lines.append(f"survived latency, {mode} mode: {', '.join(parts)}")
+            parts.append(f"{num(survived) + ' ms' if survived is not None else 'none'} at {num(loss)}% loss")
+        lines.append(f"survived latency, {panel_title(panel, varying)}: {', '.join(parts)}")
     return lines
 
 
-def _cell_text(result: CellResult | None) -> str:
-    if result is None:
+def _cell_text(agg: dict | None) -> str:
+    if agg is None:
         return "-"
-    if result.success:
-        return f"{result.max_tracking_error_m:.3f}" if result.max_tracking_error_m is not None else "ok"
-    return "X " + ("collided" if result.collided else result.result)
+    rate = f"{agg['successes']}/{agg['flights']}"
+    if agg["max_error_median_m"] is None:
+        return f"X {rate}"
+    spread = agg["max_error_spread_m"]
+    return f"{rate} {agg['max_error_median_m']:.3f}" + (f"+-{spread:.3f}" if spread is not None else "")
 
 
-def table_text(results: Mapping[tuple[str, float, float], CellResult], opts: SweepOptions) -> str:
-    """Per mode: rows = loss, columns = latency, cells = max tracking error (m) or X and why it failed."""
-    width = max(10, *(len(_cell_text(r)) + 2 for r in results.values())) if results else 10
+def table_text(rows: Sequence[Mapping]) -> str:
+    """Per panel: rows = loss, columns = latency; cell = successes/seeds, median max tracking error (m) +- its
+    spread over the successful seeds; X = no seed succeeded."""
+    maps = panels(rows)
+    varying = varying_axes(maps)
     blocks = []
-    for mode in opts.modes:
-        head = "loss \\ latency".ljust(16) + "".join(f"{_num(lat)} ms".rjust(width) for lat in opts.latencies_ms)
-        rows = [f"{mode} mode: max tracking error (m); X = failed (reason), - = not flown", head]
-        for loss in opts.losses_pct:
-            cells = "".join(_cell_text(results.get((mode, lat, loss))).rjust(width) for lat in opts.latencies_ms)
-            rows.append(f"{_num(loss)} %".ljust(16) + cells)
-        blocks.append("\n".join(rows))
+    for panel, cells in maps.items():
+        lats = sorted({lat for lat, _ in cells})
+        losses = sorted({loss for _, loss in cells})
+        width = max(12, *(len(_cell_text(a)) + 2 for a in cells.values()))
+        head = "loss \\ latency".ljust(16) + "".join(f"{num(lat)} ms".rjust(width) for lat in lats)
+        lines = [f"{panel_title(panel, varying)}: successes/seeds, max tracking error (m) median +- spread; "
+                 "X = none succeeded, - = not flown", head]
+        for loss in losses:
+            lines.append(f"{num(loss)} %".ljust(16)
+                         + "".join(_cell_text(cells.get((lat, loss))).rjust(width) for lat in lats))
+        blocks.append("\n".join(lines))
     return "\n\n".join(blocks)
-
-
-def _check_resume(opts: SweepOptions) -> None:
-    path = opts.out / "sweep.json"
-    if not path.is_file():
-        return
-    try:
-        previous = json.loads(path.read_text()).get("settings", {})
-    except (OSError, json.JSONDecodeError, AttributeError) as err:
-        raise UserError(f"{path}: unreadable ({err}); remove it or use another --out") from None
-    for key in SETTINGS_CHECKED_ON_RESUME:
-        if previous.get(key) != opts.settings()[key]:
-            raise UserError(f"--resume: {opts.out} was swept with {key} = {previous.get(key)!r}, not "
-                            f"{opts.settings()[key]!r}; use the same settings or another --out")

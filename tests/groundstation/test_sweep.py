@@ -1,76 +1,102 @@
-"""Tests of `cfstack sweep` (groundstation/sweep/): options, generated radio profiles, the
-"largest survived latency" rule, fly-result classification, the CSV, and one tiny real sweep.
+"""Tests of `cfstack sweep` (groundstation/sweep/): options, axes and seeds, generated radio profiles (checked
+by the simulator's own loader and radio), the survival rule, aggregates over seeds, the CSV/Parquet table,
+fly-result classification, and real sweeps on dask.distributed: a 2-worker LocalCluster with --resume, a
+scheduler and a worker started as users start them (`dask scheduler`, `dask worker`), and a worker killed
+mid-sweep.
 
-The generated profiles are checked by the simulator's own loader (the emulator reads them); the
-real sweep flies two cells whose outcome is certain by physics: a perfect radio (hover succeeds) and
-a 2 s one-way delay (a 4 s round trip: no vehicle can be armed and stabilised through that).
+Real flights are hovers whose outcome is certain by physics: a perfect radio (the hover succeeds) and a
+2 s one-way delay (a 4 s round trip: no vehicle can be armed and stabilised through that).
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 import tomllib
 from pathlib import Path
 
+import numpy as np
+import pyarrow.parquet as pq
 import pytest
+from testsupport import free_port
 
 from cfstack.cli import main as cfstack_main
-from groundstation.sweep import cli, grid, runner, table
+from groundstation.sweep import cell_task, cli, grid, table
 from model.config import Params, dump_toml
 from model.errors import ConfigError, UserError
 from model.radio import load_radio_profile, radio_profile_path
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+# The flights of the real sweeps: short hovers on the ideal vehicle (the fastest lockstep flight).
+HOVER = ("--firmware", "ideal", "--mode", "attitude", "--extra", "--trajectory hover")
+GRID = ("--latency", "0,2000", "--loss", "0", "--seeds", "2", *HOVER)
+SAME_ROW_COLUMNS = [c for c in table.COLUMNS if c not in ("wall_time_s", "worker", "log_dir", "attempts",
+                                                           "worker_lost")]
 
 
 def _opts(*extra: str) -> grid.SweepOptions:
     return cli.parse_options(["--latency", "0,10", "--loss", "0", *extra])
 
 
+def _bases(opts: grid.SweepOptions) -> dict:
+    return {r: grid.load_base_profile(r) for r in opts.radios}
+
+
 # ------------------------------------------------------------------------------------------ options
 
 
-def test_lists_are_parsed_sorted_and_distinct_and_modes_default_to_both():
+def test_lists_are_parsed_sorted_and_distinct_and_defaults():
     opts = cli.parse_options(["--latency", "40, 0,10", "--latency", "10,2.5", "--loss", "50,0,20"])
     assert opts.latencies_ms == (0.0, 2.5, 10.0, 40.0)
     assert opts.losses_pct == (0.0, 20.0, 50.0)
     assert opts.modes == ("moments", "attitude")
-    assert opts.radio_base == "ideal"
-    assert opts.jobs >= 1
+    assert opts.radios == ("ideal",) and opts.seeds == (1,) and opts.worlds == (None,)
+    assert opts.jitters_ms is None and opts.bursts_frames is None
+    assert opts.jobs >= 1 and opts.scheduler is None
+
+
+def test_seeds_and_repeated_axes():
+    opts = cli.parse_options(["--seed", "5", "--seeds", "3", "--radio", "lab", "--radio", "harsh", "--radio", "lab",
+                              "--vehicle-draw", "lab", "--controller", "full", "--controller", "report"])
+    assert opts.seeds == (5, 6, 7)
+    assert opts.radios == ("lab", "harsh")
+    assert opts.vehicle_draws == ("lab",) and opts.controllers == ("full", "report")
 
 
 def test_extra_arguments_are_split_like_a_shell_even_when_they_look_like_options():
     opts = _opts("--extra", "--from-ground", "--extra", "--trajectory 'constant-speed' --speed=0.5")
     assert opts.extra == ("--from-ground", "--trajectory", "constant-speed", "--speed=0.5")
-    assert runner.fly_argv(opts, grid.Cell("moments", 0.0, 0.0), Path("p.toml"), Path("log"))[-4:] == list(opts.extra)
-
-
-def test_modes_keep_the_order_given_without_repeats():
-    assert _opts("--mode", "attitude", "--mode", "moments", "--mode", "attitude").modes == ("attitude", "moments")
+    job = cli._jobs(opts, grid.grid_cells(opts, _bases(opts))[:1], _bases(opts))[0]
+    argv = cell_task.fly_argv(job, Path("cell"))
+    assert argv[-4:] == list(opts.extra)
+    assert argv[argv.index("--seed") + 1] == "1" and argv[argv.index("--radio") + 1] == str(Path("cell/radio.toml"))
 
 
 @pytest.mark.parametrize("argv, fragment", [
     (["--latency", "", "--loss", "0"], "empty entry"),
     (["--latency", "0,,10", "--loss", "0"], "empty entry"),
-    (["--latency", ",", "--loss", "0"], "empty entry"),
     (["--latency", "-10", "--loss", "0"], ">= 0"),
-    (["--latency=-10,5", "--loss", "0"], ">= 0"),
     (["--latency", "nan", "--loss", "0"], "finite"),
     (["--latency", "ten", "--loss", "0"], "not a number"),
     (["--latency", "0", "--loss", "101"], "maximum 100"),
-    (["--latency", "0", "--loss", "-1"], ">= 0"),
-    (["--latency", "0"], "--loss"),
-    (["--loss", "0"], "--latency"),
-    (["--latency", "0", "--loss", "0", "--jobs", "0"], "--jobs"),
-    (["--latency", "0", "--loss", "0", "--seed", "-1"], "--seed"),
-    (["--latency", "0", "--loss", "0", "--timeout", "0"], "--timeout"),
-    (["--latency", "0", "--loss", "0", "--mode", "rates"], "invalid choice"),
-    (["--latency", "0", "--loss", "0", "--extra", "--radio lab"], "--radio is set by the sweep"),
-    (["--latency", "0", "--loss", "0", "--extra", "--seed=3"], "--seed is set by the sweep"),
-    (["--latency", "0", "--loss", "0", "--extra", "'unclosed"], "--extra"),
-    (["/nonexistent/world.json", "--latency", "0", "--loss", "0"], "world.json"),
+    (["--burst", "0.5"], "--burst"),
+    (["--jitter", "-1"], ">= 0"),
+    (["--seeds", "0"], "--seeds"),
+    (["--jobs", "0"], "--jobs"),
+    (["--seed", "-1"], "--seed"),
+    (["--timeout", "0"], "--timeout"),
+    (["--mode", "rates"], "invalid choice"),
+    (["--controller", "mine"], "invalid choice"),
+    (["--extra", "--radio lab"], "--radio is set by the sweep"),
+    (["--extra", "--seed=3"], "--seed is set by the sweep"),
+    (["--extra", "--controller full"], "--controller is set by the sweep"),
+    (["--extra", "'unclosed"], "--extra"),
+    (["/nonexistent/world.json"], "world.json"),
 ])
 def test_bad_options_are_one_line_user_errors(argv, fragment):
     with pytest.raises(UserError) as err:
@@ -91,27 +117,105 @@ def test_unknown_base_profile_is_a_config_error():
     with pytest.raises(ConfigError, match="nosuch"):
         radio_profile_path("nosuch")
     with pytest.raises(ConfigError, match="not found"):
-        radio_profile_path("/nonexistent/radio.toml")
+        grid.load_base_profile("/nonexistent/radio.toml")
 
 
-# ------------------------------------------------------------------------------------------ profiles
+def test_unreachable_scheduler_is_one_line(tmp_path, capsys):
+    port = free_port()
+    code = cfstack_main(["sweep", "--latency", "0", "--loss", "0", "--mode", "moments", "--out", str(tmp_path),
+                         "--scheduler", f"tcp://127.0.0.1:{port}", "--timeout", "5"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err[-1].startswith("cfstack sweep: --scheduler") and "dask scheduler" in err[-1]
 
 
-@pytest.mark.parametrize("base_name", ["ideal", "crazyradio", "harsh"])
+# ------------------------------------------------------------------------------------------ grid and profiles
+
+
+def test_grid_is_the_product_of_the_axes_with_seeds_innermost():
+    opts = cli.parse_options(["--latency", "0,10", "--loss", "0,5", "--jitter", "0,2", "--burst", "1,4",
+                              "--mode", "moments", "--seeds", "3", "--vehicle-draw", "nominal",
+                              "--vehicle-draw", "lab"])
+    cells = grid.grid_cells(opts, _bases(opts))
+    assert len(cells) == 2 * 2 * 2 * 2 * 2 * 3
+    assert len({c.key for c in cells}) == len(cells) and len({c.slug for c in cells}) == len(cells)
+    assert [c.seed for c in cells[:3]] == [1, 2, 3]
+
+
+def test_unswept_radio_axes_take_each_base_profiles_values():
+    opts = cli.parse_options(["--radio", "lab", "--radio", "ideal", "--mode", "moments"])
+    cells = {c.radio: c for c in grid.grid_cells(opts, _bases(opts))}
+    lab = load_radio_profile("lab")
+    assert cells["lab"].latency_ms == pytest.approx(lab.base_latency_s * 1000.0)
+    assert cells["lab"].jitter_ms == pytest.approx(lab.jitter_s * 1000.0)
+    assert cells["lab"].loss_pct == pytest.approx(lab.loss_probability * 100.0)
+    assert cells["ideal"].latency_ms == 0.0 and cells["ideal"].loss_pct == 0.0
+    # nothing swept: the generated profile is the base's, field for field
+    generated = _generated(opts, cells["lab"])
+    assert dataclasses.replace(generated, name=lab.name, source=lab.source, path=lab.path) == lab
+
+
+def _generated(opts, cell, folder: Path | None = None):
+    folder = folder or Path(os.environ.get("TMPDIR", "/tmp"))
+    path = folder / f"cfstack-test-{cell.slug}-{os.getpid()}.toml"
+    path.write_text(grid.cell_profile_text(_bases(opts)[cell.radio], cell, opts))
+    try:
+        return load_radio_profile(path)
+    finally:
+        path.unlink()
+
+
+@pytest.mark.parametrize("base_name", ["ideal", "crazyradio", "lab"])
 @pytest.mark.parametrize("latency_ms, loss_pct", [(0.0, 0.0), (40.0, 20.0), (2.5, 100.0)])
-def test_generated_profile_loads_and_changes_only_latency_and_iid_loss(tmp_path, base_name, latency_ms, loss_pct):
-    base = grid.load_base_profile(radio_profile_path(base_name))
-    path = grid.write_cell_profile(base, latency_ms, loss_pct, tmp_path)
-    generated = load_radio_profile(path)
+def test_generated_profile_changes_only_latency_and_iid_loss(tmp_path, base_name, latency_ms, loss_pct):
+    opts = cli.parse_options(["--latency", str(latency_ms), "--loss", str(loss_pct), "--radio", base_name,
+                              "--mode", "moments"])
+    generated = _generated(opts, grid.grid_cells(opts, _bases(opts))[0], tmp_path)
     original = load_radio_profile(base_name)
     assert generated.base_latency_s == pytest.approx(latency_ms * 1e-3, abs=0.0, rel=1e-15)
     assert generated.loss_probability == pytest.approx(loss_pct * 1e-2, abs=0.0, rel=1e-15)
-    # every other field is the base's (name/source/path say where the file came from)
+    assert not generated.burst.enabled
     expected = dataclasses.replace(original, base_latency_s=generated.base_latency_s,
-                                   loss_probability=generated.loss_probability, name=generated.name,
-                                   source=generated.source, path=generated.path)
+                                   loss_probability=generated.loss_probability, burst=generated.burst,
+                                   name=generated.name, source=generated.source, path=generated.path)
     assert generated == expected
     assert base_name in generated.name and base_name in generated.source
+
+
+def test_burst_axis_keeps_the_average_loss_and_gives_the_mean_burst_length(tmp_path):
+    """Fed through the simulator's own radio: 10 % loss in bursts of mean 5 frames loses ~10 % of the frames,
+    in runs of mean length ~5 (i.i.d. 10 % loss would give runs of mean 1 / 0.9 = 1.11)."""
+    from simulator.radio import RadioChannel
+
+    opts = cli.parse_options(["--loss", "10", "--burst", "1,5", "--mode", "moments"])
+    measured = {}
+    for cell in grid.grid_cells(opts, _bases(opts)):
+        channel = RadioChannel(_generated(opts, cell, tmp_path), np.random.default_rng(3))
+        n = 100_000
+        for i in range(n):
+            channel.push(bytes(20), i * 0.002)
+            channel.pop_due(i * 0.002)
+        lost = np.array([fate.drop_cause is not None for fate in channel.ledger])
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], lost.astype(int), [0]])))
+        measured[cell.burst_frames] = (lost.mean(), float(np.mean(edges[1::2] - edges[0::2])))
+    assert measured[1.0][0] == pytest.approx(0.10, abs=0.005) and measured[1.0][1] == pytest.approx(1 / 0.9, rel=0.05)
+    assert measured[5.0][0] == pytest.approx(0.10, abs=0.01) and measured[5.0][1] == pytest.approx(5.0, rel=0.08)
+
+
+def test_a_bursty_base_keeps_its_mean_burst_when_only_the_loss_is_swept(tmp_path):
+    harsh = load_radio_profile("harsh")
+    opts = cli.parse_options(["--loss", "20", "--radio", "harsh", "--mode", "moments"])
+    cell = grid.grid_cells(opts, _bases(opts))[0]
+    assert cell.burst_frames == pytest.approx(1.0 / harsh.burst.p_bad_to_good)
+    generated = _generated(opts, cell, tmp_path)
+    assert generated.burst.p_bad_to_good == pytest.approx(harsh.burst.p_bad_to_good)
+    assert generated.burst.stationary_bad * generated.burst.loss_bad == pytest.approx(0.20)
+    assert generated.loss_probability == 0.0
+
+
+def test_jitter_axis_sets_the_profiles_jitter(tmp_path):
+    opts = cli.parse_options(["--latency", "20", "--jitter", "3", "--radio", "lab", "--mode", "moments"])
+    generated = _generated(opts, grid.grid_cells(opts, _bases(opts))[0], tmp_path)
+    assert generated.jitter_s == pytest.approx(0.003) and generated.jitter == load_radio_profile("lab").jitter
 
 
 def test_toml_writer_round_trips_nested_tables_and_awkward_strings():
@@ -120,239 +224,257 @@ def test_toml_writer_round_trips_nested_tables_and_awkward_strings():
     assert tomllib.loads(dump_toml(data, header="two\nlines")) == data
 
 
-def test_profile_file_names_differ_per_cell(tmp_path):
-    base = grid.load_base_profile(radio_profile_path("ideal"))
-    paths = {grid.write_cell_profile(base, lat, loss, tmp_path) for lat in (0.0, 10.0, 100.0) for loss in (0.0, 10.0)}
-    assert len(paths) == 6
-
-
 def test_base_without_the_swept_fields_is_a_config_error(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('schema_version = 1\nname = "bad"\nsource = "test"\n[latency]\njitter_s = 0.0\n')
     with pytest.raises(ConfigError, match="base_s"):
-        grid.load_base_profile(bad)
+        grid.load_base_profile(str(bad))
 
 
-# ------------------------------------------------------------------------------------------ survival rule
+def test_base_profile_is_read_without_importing_the_simulator():
+    """House rule: the ground station finds the shipped profile as data, never by importing simulator/."""
+    code = ("import sys; from groundstation.sweep import grid, runner; grid.load_base_profile('lab'); "
+            "print('simulator' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False"]
+    assert Params.load(radio_profile_path("lab")).string("name") == "lab"
+
+
+# ------------------------------------------------------------------------------------------ rows and tables
+
+
+def _row(latency: float, loss: float, ok: bool, seed: int = 1, mode: str = "moments", error: float | None = 0.05,
+         status: str = "flown") -> dict:
+    cell = grid.Cell("", mode, "ideal", latency, 0.0, loss, 1.0, "", "nominal", seed)
+    measured = {"cell_status": status, "success": ok, "result": "reached_goal" if ok else "failsafe",
+                "reached_goal": ok, "max_tracking_error_m": error if ok else None, "exit_code": 0 if ok else 1,
+                "uplink_delivery": 0.99, "wall_time_s": 3.5, "worker": "host", "log_dir": "/x"}
+    return table.make_row(cell, measured, attempts=1, worker_lost=False)
 
 
 @pytest.mark.parametrize("outcomes, expected", [
-    ({0.0: True, 10.0: True, 20.0: True}, 20.0),  # all survive: the largest
-    ({0.0: True, 10.0: True, 20.0: False, 40.0: True}, 10.0),  # a lucky cell after a failure does not count
-    ({0.0: False, 10.0: True}, None),  # fails at the lowest latency: nothing survived
-    ({20.0: True, 0.0: True, 10.0: False}, 0.0),  # order of the mapping is irrelevant
-    ({0.0: True, 10.0: None, 20.0: True}, 0.0),  # a cell not flown is not survived
-    ({}, None),
+    ({0.0: True, 10.0: True, 20.0: True}, 20.0),
+    ({0.0: True, 10.0: False, 20.0: True}, 0.0),  # a lucky cell past a failure does not count
+    ({0.0: False, 10.0: True}, None),
+    ({0.0: True, 10.0: None, 20.0: True}, 0.0),  # not flown is not survived
 ])
 def test_largest_survived_latency(outcomes, expected):
     assert table.largest_survived_latency(outcomes) == expected
 
 
-def _result(mode: str, lat: float, loss: float, ok: bool) -> table.CellResult:
-    return table.CellResult(grid.Cell(mode, lat, loss), success=ok, result="reached_goal" if ok else "failsafe",
-                            reached_goal=ok, max_tracking_error_m=0.05 if ok else None, exit_code=0 if ok else 1)
+def test_survival_needs_every_seed():
+    rows = [_row(0, 0, True, 1), _row(0, 0, True, 2), _row(20, 0, True, 1), _row(20, 0, False, 2),
+            _row(0, 20, True, 1), _row(0, 20, True, 2)]
+    lines = table.survival_lines(rows)
+    assert lines == ["survived latency, moments mode: 0 ms at 0% loss, 0 ms at 20% loss"]
 
 
-def test_survival_lines_on_a_synthetic_table():
-    opts = cli.parse_options(["--latency", "0,20,40,60", "--loss", "0,20,50"])
-    outcomes = {  # moments: 0 % loss survives to 40 (60 fails); 20 %: 20 fails, 40 ok again -> 0
-        ("moments", 0.0, 0.0): True, ("moments", 20.0, 0.0): True, ("moments", 40.0, 0.0): True,
-        ("moments", 60.0, 0.0): False,
-        ("moments", 0.0, 20.0): True, ("moments", 20.0, 20.0): False, ("moments", 40.0, 20.0): True,
-        ("moments", 60.0, 20.0): False,
-        # attitude: everything survives at 0 %; at 20 % the lowest fails
-        **{("attitude", lat, 0.0): True for lat in (0.0, 20.0, 40.0, 60.0)},
-        **{("attitude", lat, 20.0): lat > 0 for lat in (0.0, 20.0, 40.0, 60.0)},
-    }
-    results = {key: _result(*key, ok) for key, ok in outcomes.items()}
-    lines = table.survival_lines(results, opts)
-    assert lines == ["survived latency, moments mode: 40 ms at 0% loss, 0 ms at 20% loss",
-                     "survived latency, attitude mode: 60 ms at 0% loss, none at 20% loss"]
-    text = table.table_text(results, opts)
-    assert text.count("X failsafe") == sum(not ok for ok in outcomes.values())
-    not_flown_rows = [line.split()[2:] for line in text.splitlines() if line.startswith("50 %")]
-    assert not_flown_rows == [["-"] * 4, ["-"] * 4]  # both modes' 50 % rows were not flown
+def test_aggregate_is_the_success_rate_and_the_sample_spread_over_seeds():
+    rows = [_row(0, 0, True, s, error=e) for s, e in ((1, 0.01), (2, 0.03), (3, 0.05))] + [_row(0, 0, False, 4)]
+    agg = table.aggregate(rows)[table.cell_key(rows[0])]
+    assert agg["flights"] == 4 and agg["successes"] == 3 and agg["success_rate"] == 0.75
+    assert agg["max_error_median_m"] == pytest.approx(0.03)
+    assert agg["max_error_spread_m"] == pytest.approx(0.02)  # sample std of 0.01, 0.03, 0.05
+    assert "3/4 0.030+-0.020" in table.table_text(rows)
 
 
-def test_survival_says_when_a_report_loss_was_not_swept_or_not_flown():
-    opts = cli.parse_options(["--latency", "0,10", "--loss", "0,10", "--mode", "moments"])
-    assert table.survival_lines({}, opts) == ["survived latency, moments mode: unknown (not flown) at 0% loss, "
-                                              "not swept at 20% loss"]
-
-
-# ------------------------------------------------------------------------------------------ fly results
-
-
-CELL = grid.Cell("attitude", 10.0, 20.0)
-
-
-def test_exit_code_2_aborts_with_flys_last_line():
-    with pytest.raises(UserError) as err:
-        runner.result_from_fly(CELL, 2, "", "usage: ...\ncfstack fly: error: bad thing\n", 1.0, Path("x"))
-    assert "bad thing" in str(err.value) and "attitude 10 ms 20 %" in str(err.value)
-
-
-def test_a_crash_or_timeout_is_a_failed_cell_not_an_abort():
-    crash = runner.result_from_fly(CELL, 1, "", "Traceback...\nZeroDivisionError: boom\n", 3.0, Path("x"))
-    assert (crash.success, crash.result, crash.exit_code) == (False, "crash", 1)
-    assert "boom" in crash.reason
-    killed = runner.result_from_fly(CELL, -9, "", "", 3.0, Path("x"), timed_out=True)
-    assert (killed.success, killed.result) == (False, "timeout")
-    # stopped at its timeout, fly landed and printed its summary in time: still a timeout, metrics kept
-    landed = json.dumps({"result": "aborted", "reached_goal": False, "collided": False, "flight_time_s": 0.4})
-    stopped = runner.result_from_fly(CELL, 1, landed, "", 3.0, Path("x"), timed_out=True)
-    assert (stopped.success, stopped.result, stopped.flight_time_s) == (False, "timeout", 0.4)
-    garbage = runner.result_from_fly(CELL, 0, "not json", "", 3.0, Path("x"))
-    assert not garbage.success
-
-
-def test_success_needs_the_goal_and_no_collision():
-    base = {"result": "reached_goal", "reached_goal": True, "collided": False, "max_tracking_error_m": 0.1,
-            "rms_tracking_error_m": 0.05, "min_clearance_m": 0.2, "flight_time_s": 9.0, "failsafe_reason": None}
-    ok = runner.result_from_fly(CELL, 0, json.dumps(base), "", 5.0, Path("x"))
-    assert ok.success and ok.max_tracking_error_m == 0.1 and ok.min_clearance_m == 0.2
-    hit = runner.result_from_fly(CELL, 0, json.dumps({**base, "collided": True}), "", 5.0, Path("x"))
-    assert not hit.success
-    failsafe = runner.result_from_fly(CELL, 1, json.dumps({**base, "result": "failsafe", "reached_goal": False,
-                                                          "failsafe_reason": "mocap lost"}), "", 5.0, Path("x"))
-    assert not failsafe.success and failsafe.reason == "mocap lost"
-
-
-def test_csv_round_trip(tmp_path):
-    results = [_result("moments", 10.0, 0.0, True), _result("attitude", 2.5, 50.0, False),
-               _result("moments", 0.0, 0.0, True)]
+def test_csv_and_parquet_hold_the_same_rows_and_read_back(tmp_path):
+    rows = [_row(10, 0, True, 2), _row(0, 0, False, 1), _row(0, 5, True, 1, error=0.125)]
     path = tmp_path / "sweep.csv"
-    table.write_csv(path, results, ("moments", "attitude"))
+    table.write_tables(path, rows)
     back = table.read_csv(path)
-    assert [r.cell.key for r in back] == [("moments", 0.0, 0.0), ("moments", 10.0, 0.0), ("attitude", 2.5, 50.0)]
-    assert {r.cell.key: r for r in back} == {r.cell.key: r for r in results}
+    assert sorted(back, key=table.cell_key) == sorted(rows, key=table.cell_key)
+    parquet = pq.read_table(tmp_path / "sweep.parquet").to_pylist()
+    assert parquet == back  # the same order, types and values
+    assert not list(tmp_path.glob("*.tmp"))
 
 
 def test_a_foreign_csv_is_refused(tmp_path):
     path = tmp_path / "sweep.csv"
-    path.write_text("a,b\n1,2\n")
-    with pytest.raises(UserError, match="not a sweep table"):
+    path.write_text("mode,latency_ms\nmoments,0\n")
+    with pytest.raises(UserError, match="columns differ"):
         table.read_csv(path)
 
 
+def test_outcome_classification():
+    summary = {"result": "reached_goal", "reached_goal": True, "collided": False, "max_tracking_error_m": 0.01,
+               "link": {"uplink_sent": 100, "uplink_delivered": 99, "downlink_sent": 10, "downlink_delivered": 10}}
+    ok = cell_task.outcome_from_fly(0, json.dumps(summary), "", timed_out=False)
+    assert ok["success"] and ok["cell_status"] == "flown" and ok["uplink_delivery"] == 0.99
+    collided = cell_task.outcome_from_fly(1, json.dumps({**summary, "collided": True}), "", timed_out=False)
+    assert not collided["success"] and collided["cell_status"] == "flown"
+    crash = cell_task.outcome_from_fly(-9, "", "line one\nTraceback: boom\n", timed_out=False)
+    assert crash["cell_status"] == "crash" and crash["reason"] == "Traceback: boom"
+    late = cell_task.outcome_from_fly(0, json.dumps(summary), "", timed_out=True)
+    assert late["cell_status"] == "wall_timeout" and not late["success"]
+    bad = cell_task.outcome_from_fly(2, "", "cfstack fly: --trajectory x: unknown\n", timed_out=False)
+    assert bad["cell_status"] == "bad_input" and "--trajectory x" in bad["reason"]
+
+
 def test_progress_line():
-    assert cli.progress_line(0, 4, 0.0, None, width=8) == "[........] 0/4 cells  elapsed 0:00  ETA --:--"
-    assert cli.progress_line(2, 4, 75.0, 75.0, width=8) == "[####....] 2/4 cells  elapsed 1:15  ETA 1:15"
-    assert cli.progress_line(4, 4, 3725.0, 0.0, width=8).endswith("elapsed 1:02:05  ETA 0:00")
+    progress = cli.Progress(done=2, failed=1, retried=1)
+    line = cli.progress_line(2, 4, 75.0, 75.0, progress, "http://127.0.0.1:8787/status", width=8)
+    assert line == ("[####....] 2/4 flights  failed 1  retried 1  elapsed 1:15  ETA 1:15  "
+                    "dashboard http://127.0.0.1:8787/status")
 
 
-# ------------------------------------------------------------------------------------------ real flights
+# ------------------------------------------------------------------------------------------ real sweeps
 
 
-def test_tiny_real_sweep_then_resume(tmp_path, capsys):
-    """Two hover cells in attitude mode: a perfect radio (must succeed) and 2 s one-way (must fail)."""
-    out = tmp_path / "sweep"
-    argv = ["sweep", "--mode", "attitude", "--latency", "0,2000", "--loss", "0", "--jobs", "2", "--out", str(out)]
-    assert cfstack_main(argv) == 0
-    stdout = capsys.readouterr().out
-    with (out / "sweep.csv").open(newline="") as f:
-        rows = {float(r["latency_ms"]): r for r in csv.DictReader(f)}
-    assert set(rows) == {0.0, 2000.0}
-    assert rows[0.0]["success"] == "true" and rows[0.0]["result"] == "reached_goal"
-    assert rows[2000.0]["success"] == "false" and rows[2000.0]["result"] != "reached_goal"
+def _sweep(*argv: str, timeout: float = 600.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cfstack", "sweep", *argv], capture_output=True, text=True,
+                          timeout=timeout, stdin=subprocess.DEVNULL)
+
+
+def _rows(out: Path) -> dict[tuple, dict]:
+    return {table.cell_of(r).key: r for r in table.read_csv(out / "sweep.csv")}
+
+
+def _check_grid_rows(rows: dict[tuple, dict]) -> None:
+    assert len(rows) == 4
     for row in rows.values():
-        assert row["mode"] == "attitude" and row["loss_pct"] == "0"
+        assert row["cell_status"] == "flown" and row["mode"] == "attitude" and row["seed"] in (1, 2)
+        assert row["success"] == (row["latency_ms"] == 0.0)  # physics: 4 s round trip cannot fly
         assert (Path(row["log_dir"]) / "fly_stdout.json").is_file()
-        assert Path(row["log_dir"]).parent == out / "cells"
-    assert 0.0 < float(rows[0.0]["max_tracking_error_m"]) < 0.1  # a hover on a perfect radio: mm-level
-    assert (out / "sweep.png").read_bytes().startswith(PNG_MAGIC)
-    assert "survived latency, attitude mode: 0 ms at 0% loss, not swept at 20% loss" in stdout
-    profiles = sorted((out / "profiles").glob("*.toml"))
-    assert [load_radio_profile(p).base_latency_s for p in profiles] == [0.0, 2.0]
+    for row in rows.values():
+        if row["success"]:
+            assert 0.0 < row["max_tracking_error_m"] < 0.1 and row["uplink_delivery"] == 1.0
 
-    # --resume: every cell is in the table, so nothing is flown again and the table is unchanged
+
+@pytest.mark.slow
+def test_local_cluster_grid_with_two_seeds_then_resume_does_nothing(tmp_path):
+    out = tmp_path / "sweep"
+    first = _sweep(*GRID, "--jobs", "2", "--out", str(out))
+    assert first.returncode == 0, first.stderr
+    assert "on 2 dask workers (LocalCluster)" in first.stderr and "dashboard http" in first.stderr
+    assert "failed 2  retried 0" in first.stderr
+    rows = _rows(out)
+    _check_grid_rows(rows)
+    assert (out / "sweep.png").read_bytes().startswith(PNG_MAGIC)
+    assert pq.read_table(out / "sweep.parquet").num_rows == 4
+    assert "survived latency, attitude mode: 0 ms at 0% loss" in first.stdout
+    assert "2/2" in first.stdout and "X 0/2" in first.stdout
+
     before = (out / "sweep.csv").read_text()
-    assert cfstack_main([*argv, "--resume"]) == 0
+    again = _sweep(*GRID, "--jobs", "2", "--out", str(out), "--resume")
+    assert again.returncode == 0 and "nothing to fly" in again.stderr
     assert (out / "sweep.csv").read_text() == before
-    assert "survived latency, attitude mode: 0 ms at 0% loss" in capsys.readouterr().out
+    # the lockstep flights are deterministic per seed: a cell's two seeds differ, a re-run would not
+    errors = sorted(r["max_tracking_error_m"] for r in rows.values() if r["success"])
+    assert errors[0] != errors[1]
 
-    # --resume with other settings is refused rather than mixing two experiments in one table
-    assert cfstack_main([*argv, "--resume", "--seed", "7"]) == 2
-    assert "seed" in capsys.readouterr().err
+    # --resume with other fly settings is refused rather than mixing two experiments in one table
+    other = _sweep(*GRID, "--out", str(out), "--resume", "--extra", "--speed 0.5")
+    assert other.returncode == 2 and "extra" in other.stderr
 
 
-def test_bad_fly_argument_aborts_the_sweep_with_one_line(tmp_path, capsys):
+def _start(argv: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait(timeout=30)
+
+
+def _dask(*args: str) -> list[str]:
+    return [str(Path(sys.executable).with_name("dask")), *args]
+
+
+@pytest.fixture
+def dask_cluster():
+    """A scheduler and workers started as the README starts them; yields (address, start_worker)."""
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [_start(_dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0"))]
+
+    def start_worker() -> subprocess.Popen:
+        procs.append(_start(_dask("worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard")))
+        return procs[-1]
+
+    try:
+        yield address, start_worker
+    finally:
+        for proc in reversed(procs):
+            _kill(proc)
+
+
+@pytest.mark.slow
+def test_separately_started_scheduler_and_worker_give_the_same_rows(tmp_path, dask_cluster):
+    address, start_worker = dask_cluster
+    start_worker()
+    local, remote = tmp_path / "local", tmp_path / "remote"
+    done = _sweep(*GRID, "--scheduler", address, "--out", str(remote))
+    assert done.returncode == 0, done.stderr
+    assert f"at {address}" in done.stderr
+    reference = _sweep(*GRID, "--jobs", "2", "--out", str(local))
+    assert reference.returncode == 0, reference.stderr
+    remote_rows, local_rows = _rows(remote), _rows(local)
+    _check_grid_rows(remote_rows)
+    assert remote_rows.keys() == local_rows.keys()
+    for key, row in remote_rows.items():
+        assert {c: row[c] for c in SAME_ROW_COLUMNS} == {c: local_rows[key][c] for c in SAME_ROW_COLUMNS}
+
+
+@pytest.mark.slow
+def test_killing_a_worker_mid_sweep_loses_no_finished_row(tmp_path, dask_cluster):
+    address, start_worker = dask_cluster
+    start_worker()
+    victim = start_worker()
     out = tmp_path / "sweep"
-    code = cfstack_main(["sweep", "--mode", "attitude", "--latency", "0", "--loss", "0", "--out", str(out),
-                         "--extra", "--trajectory no-such-trajectory"])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2
-    assert err[-1].startswith("cfstack sweep: cell attitude 0 ms 0 %:") and "no-such-trajectory" in err[-1]
+    sweep = subprocess.Popen([sys.executable, "-m", "cfstack", "sweep", *HOVER, "--latency", "0", "--loss", "0",
+                              "--seeds", "6", "--scheduler", address, "--out", str(out)],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not (out / "sweep.csv").is_file() or not table.read_csv(out / "sweep.csv"):
+        assert sweep.poll() is None and time.monotonic() < deadline, "no flight finished"
+        time.sleep(0.2)
+    finished_before = _rows(out)
+    time.sleep(1.0)  # the client has seen which worker flies what
+    _kill(victim)
+    stdout, stderr = sweep.communicate(timeout=600)
+    assert sweep.returncode == 0, stderr
+    rows = _rows(out)
+    for key, row in finished_before.items():
+        assert rows[key] == row  # nothing finished was lost or rewritten
+    assert len(rows) == 6 and all(r["cell_status"] == "flown" for r in rows.values())
+    assert any(r["worker_lost"] for r in rows.values()), stderr
+    assert "lost workers 1" in stderr, stderr
+    lost = [r for r in rows.values() if r["worker_lost"]]
+    assert all(r["attempts"] == 2 for r in lost)
 
 
-def test_base_profile_is_read_without_importing_the_simulator():
-    """House rule: the ground station finds the shipped profile as data, never by importing simulator/."""
-    import subprocess
-    import sys
-
-    code = ("import sys; from groundstation.sweep import grid; from model.radio import radio_profile_path; "
-            "p = radio_profile_path('lab'); "
-            "grid.load_base_profile(p); print(p.name, 'simulator' in sys.modules)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
-    assert out == ["lab.toml", "False"]
-    assert Params.load(radio_profile_path("lab")).string("name") == "lab"
-
-
-def _started_flights(monkeypatch) -> list:
-    """Record every fly child the sweep starts."""
-    flights, start = [], runner._Flight.start
-
-    def recording_start(*args):
-        flights.append(start(*args))
-        return flights[-1]
-
-    monkeypatch.setattr(runner._Flight, "start", staticmethod(recording_start))
-    return flights
-
-
-def _one_cell(tmp_path, *extra: str) -> tuple[grid.SweepOptions, list]:
-    opts = cli.parse_options(["--mode", "attitude", "--latency", "0", "--loss", "0", "--out", str(tmp_path),
-                                *extra])
-    base = grid.load_base_profile(radio_profile_path("ideal"))
-    cell = grid.grid_cells(opts)[0]
-    return opts, [(cell, grid.write_cell_profile(base, 0.0, 0.0, tmp_path / "profiles"))]
-
-
-def test_a_flight_past_its_timeout_is_stopped_and_is_a_failed_cell(tmp_path, monkeypatch):
-    flights = _started_flights(monkeypatch)
-    opts, todo = _one_cell(tmp_path, "--timeout", "1")
-    done: list[table.CellResult] = []
-    runner.run_cells(opts, todo, done.append)
-    assert [(r.success, r.result) for r in done] == [(False, "timeout")]
-    assert len(flights) == 1 and flights[0].proc.poll() is not None
-
-
-def test_ctrl_c_stops_the_running_flights(tmp_path, monkeypatch):
-    flights = _started_flights(monkeypatch)
-    opts, todo = _one_cell(tmp_path)
-
-    def interrupt():
-        raise KeyboardInterrupt
-
-    done: list[table.CellResult] = []
-    with pytest.raises(KeyboardInterrupt):
-        runner.run_cells(opts, todo, done.append, on_tick=interrupt)
-    assert done == [] and len(flights) == 1
-    assert flights[0].proc.poll() is not None  # stopped, not orphaned
-
-
-def test_ctrl_c_still_writes_what_was_done(tmp_path, monkeypatch, capsys):
-    """The command keeps the finished cells (CSV, PNG, table) and exits 130 to ask for --resume."""
-    def one_cell_then_ctrl_c(opts, todo, on_done, on_tick):
-        cell, _ = todo[0]
-        on_done(_result(cell.mode, cell.latency_ms, cell.loss_pct, True))
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(cli, "run_cells", one_cell_then_ctrl_c)
+@pytest.mark.slow
+def test_ctrl_c_leaves_a_consistent_table_and_resume_finishes(tmp_path):
     out = tmp_path / "sweep"
-    code = cfstack_main(["sweep", "--mode", "moments", "--latency", "0,10", "--loss", "0", "--out", str(out)])
-    captured = capsys.readouterr()
-    assert code == 130 and "--resume" in captured.err
-    assert [r.cell.key for r in table.read_csv(out / "sweep.csv")] == [("moments", 0.0, 0.0)]
-    assert (out / "sweep.png").read_bytes().startswith(PNG_MAGIC)
-    assert "survived latency, moments mode: 0 ms at 0% loss" in captured.out
+    argv = [*HOVER, "--latency", "0", "--loss", "0", "--seeds", "4", "--jobs", "1", "--out", str(out)]
+    sweep = subprocess.Popen([sys.executable, "-m", "cfstack", "sweep", *argv], stdin=subprocess.DEVNULL,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not (out / "sweep.csv").is_file() or not table.read_csv(out / "sweep.csv"):
+        assert sweep.poll() is None and time.monotonic() < deadline, "no flight finished"
+        time.sleep(0.2)
+    sweep.send_signal(signal.SIGINT)
+    stdout, stderr = sweep.communicate(timeout=120)
+    assert sweep.returncode == 130, stderr
+    assert "--resume" in stderr
+    partial = _rows(out)
+    assert 1 <= len(partial) < 4
+    assert pq.read_table(out / "sweep.parquet").num_rows == len(partial)
+    finished = _sweep(*argv, "--resume")
+    assert finished.returncode == 0, finished.stderr
+    rows = _rows(out)
+    assert len(rows) == 4 and all(rows[k] == v for k, v in partial.items())
+
+
+def test_bad_fly_argument_aborts_the_sweep_with_one_line(tmp_path):
+    out = tmp_path / "sweep"
+    done = _sweep("--mode", "attitude", "--latency", "0", "--loss", "0", "--out", str(out), "--jobs", "1",
+                  "--extra", "--trajectory no-such-trajectory")
+    err = done.stderr.strip().splitlines()
+    assert done.returncode == 2
+    assert err[-1].startswith("cfstack sweep: cell empty attitude ideal 0 ms") and "no-such-trajectory" in err[-1]
