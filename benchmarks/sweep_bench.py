@@ -36,9 +36,10 @@ def _pool(commit: str, flights: int, jobs: int, out: Path, scratch: Path) -> flo
     """Wall seconds for the old pool to fly the grid."""
     old = baseline_modules(commit, {"grid": "groundstation/sweep/grid.py", "table": "groundstation/sweep/table.py",
                                     "runner": "groundstation/sweep/runner.py"}, scratch)
-    opts = old["grid"].SweepOptions(world=None, modes=("attitude",),
-                                    latencies_ms=tuple(float(i) for i in range(flights)), losses_pct=(0.0,), jobs=jobs, out=out, seed=1, radio_base="ideal",
-                                    extra=TRAJECTORY, firmware="ideal")
+    latencies = tuple(float(i) for i in range(flights))
+    opts = old["grid"].SweepOptions(world=None, modes=("attitude",), latencies_ms=latencies, losses_pct=(0.0,),
+                                    jobs=jobs, out=out, seed=1, radio_base="ideal", extra=TRAJECTORY,
+                                    firmware="ideal")
     base = old["grid"].load_base_profile(radio_profile_path("ideal"))
     todo = [(c, old["grid"].write_cell_profile(base, c.latency_ms, c.loss_pct, out / "profiles"))
             for c in old["grid"].grid_cells(opts)]
