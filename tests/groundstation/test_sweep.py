@@ -478,3 +478,15 @@ def test_bad_fly_argument_aborts_the_sweep_with_one_line(tmp_path):
     err = done.stderr.strip().splitlines()
     assert done.returncode == 2
     assert err[-1].startswith("cfstack sweep: cell empty attitude ideal 0 ms") and "no-such-trajectory" in err[-1]
+
+
+def test_a_flight_past_its_timeout_is_stopped_retried_once_and_recorded(tmp_path):
+    out = tmp_path / "sweep"
+    done = _sweep(*HOVER, "--latency", "0", "--loss", "0", "--timeout", "1", "--jobs", "1", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    (row,) = _rows(out).values()
+    assert row["cell_status"] == "wall_timeout" and row["attempts"] == 2 and not row["success"]
+    assert "retried 1" in done.stderr
+    # the stopped flights left no process behind: fly's emulator died with it
+    leftovers = subprocess.run(["pgrep", "-f", str(out)], capture_output=True, text=True).stdout.split()
+    assert leftovers == []
