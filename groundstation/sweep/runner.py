@@ -14,9 +14,11 @@ what is queued; running flights on a LocalCluster stop with their workers (each 
 from __future__ import annotations
 
 import logging
+import socket
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from urllib.parse import urlsplit
 
 import dask
 from distributed import Client, Future, LocalCluster
@@ -31,6 +33,22 @@ CONNECT_TIMEOUT_S = 20.0
 MAX_ATTEMPTS = 2  # the first flight and one retry
 RETRIED_STATUSES = ("crash", "wall_timeout")
 log = logging.getLogger("cfstack.sweep")
+
+
+def _check_reachable(address: str) -> None:
+    """Fail at once, in one line, when nothing listens there (dask's client would retry until its timeout)."""
+    parsed = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parsed.hostname, parsed.port
+    except ValueError:
+        port = None
+    if parsed.scheme != "tcp" or not host or port is None:
+        raise UserError(f"--scheduler {address}: expected tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786)")
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as err:
+        raise UserError(f"--scheduler {address}: no dask scheduler answered ({err.strerror or err}); start one "
+                        "with `dask scheduler` and a worker with `dask worker ADDRESS`") from None
 
 
 @dataclass
@@ -60,6 +78,7 @@ class DaskRunner:
 
     def __post_init__(self) -> None:
         if self.opts.scheduler:
+            _check_reachable(self.opts.scheduler)
             try:
                 self.client = Client(self.opts.scheduler, timeout=CONNECT_TIMEOUT_S)
             except (OSError, TimeoutError, ValueError) as err:
