@@ -22,6 +22,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from distributed import get_worker
+
 from groundstation.child_process import die_with_parent
 from groundstation.sweep.grid import Cell
 from model.errors import UserError
@@ -122,8 +124,6 @@ STARTED_TOPIC = "cfstack-cell-started"  # event each flight logs as it starts: t
 def _announce_start(job: CellJob) -> None:
     """Tell the client (through the scheduler's event log) which worker is flying this job now: the
     scheduler's own assignment also counts flights merely queued on a worker."""
-    from distributed import get_worker
-
     try:
         worker = get_worker()
     except ValueError:  # called outside a worker (tests)

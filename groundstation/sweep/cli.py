@@ -325,21 +325,20 @@ def command(argv: list[str]) -> int:
         outputs.add(row)
         bar.flight_done(row)
 
+    interrupted = False
     try:
         runner.run(_jobs(opts, todo, bases), flown, bar.tick)
     except KeyboardInterrupt:
+        interrupted = True
+    except UserError:
+        write_tables(outputs.csv_path, outputs.rows.values())
+        raise
+    finally:
         bar.close()
         runner.close()
-        outputs.finish()
+    outputs.finish()
+    if interrupted:
         print(f"cfstack sweep: interrupted after {bar.done} of {len(cells)} flights; the rest: rerun with --resume "
               f"--out {opts.out}", file=sys.stderr)
         return 130
-    except UserError:
-        bar.close()
-        runner.close()
-        write_tables(outputs.csv_path, outputs.rows.values())
-        raise
-    bar.close()
-    runner.close()
-    outputs.finish()
     return 0

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import copy
 import itertools
-from dataclasses import asdict, dataclass, fields
+from dataclasses import astuple, dataclass, fields
 from pathlib import Path
 
 from model.config import Params, dump_toml
@@ -77,7 +77,7 @@ class Cell:
 
     @property
     def key(self) -> tuple:
-        return tuple(asdict(self).values())
+        return astuple(self)
 
     @property
     def world_name(self) -> str:

@@ -20,7 +20,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from urllib.parse import urlsplit
 
-import dask
 from distributed import Client, Future, LocalCluster
 
 from groundstation.sweep.cell_task import STARTED_TOPIC, CellJob, fly_cell, job_key
@@ -47,8 +46,28 @@ def _check_reachable(address: str) -> None:
     try:
         socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
     except OSError as err:
-        raise UserError(f"--scheduler {address}: no dask scheduler answered ({err.strerror or err}); start one "
-                        "with `dask scheduler` and a worker with `dask worker ADDRESS`") from None
+        raise _no_scheduler(address, err.strerror or err) from None
+
+
+def _no_scheduler(address: str, why) -> UserError:
+    return UserError(f"--scheduler {address}: no dask scheduler answered ({why}); start one with `dask scheduler` "
+                     "and a worker with `dask worker ADDRESS`")
+
+
+def _connect(address: str) -> Client:
+    """A client of the running scheduler at `address` that has at least one worker; one-line UserError if not."""
+    _check_reachable(address)
+    try:
+        client = Client(address, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError, ValueError) as err:
+        raise _no_scheduler(address, err) from None
+    try:
+        client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+    except TimeoutError:
+        client.close()
+        raise UserError(f"--scheduler {address}: the scheduler has no worker after {CONNECT_TIMEOUT_S:g} s; start "
+                        "one with `dask worker ADDRESS`") from None
+    return client
 
 
 @dataclass
@@ -57,7 +76,6 @@ class Progress:
     failed: int = 0  # rows whose flight did not succeed (any reason)
     retried: int = 0  # flights started again (crash, wall-clock timeout, error or lost worker)
     lost_workers: int = 0  # workers that left the cluster while flying one of ours
-    running: int = 0
 
 
 @dataclass
@@ -78,25 +96,12 @@ class DaskRunner:
 
     def __post_init__(self) -> None:
         if self.opts.scheduler:
-            _check_reachable(self.opts.scheduler)
-            try:
-                self.client = Client(self.opts.scheduler, timeout=CONNECT_TIMEOUT_S)
-            except (OSError, TimeoutError, ValueError) as err:
-                raise UserError(f"--scheduler {self.opts.scheduler}: no dask scheduler answered ({err}); start one "
-                                "with `dask scheduler` and a worker with `dask worker ADDRESS`") from None
-            try:
-                self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
-            except TimeoutError:
-                self.client.close()
-                raise UserError(f"--scheduler {self.opts.scheduler}: the scheduler has no worker after "
-                                f"{CONNECT_TIMEOUT_S:g} s; start one with `dask worker ADDRESS`") from None
-            self._listen()
-            return
-        # One single-threaded worker process per flight slot: a flight is two busy processes of its own.
-        with dask.config.set({"distributed.worker.daemon": False}):
+            self.client = _connect(self.opts.scheduler)
+        else:
+            # One single-threaded worker process per flight slot: a flight is two busy processes of its own.
             self.cluster = LocalCluster(n_workers=self.opts.jobs, threads_per_worker=1, processes=True,
                                         dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
-        self.client = Client(self.cluster)
+            self.client = Client(self.cluster)
         self._listen()
 
     def _listen(self) -> None:
@@ -137,7 +142,6 @@ class DaskRunner:
                     again = self._finish(flight, on_row, progress)
                     if again is not None:
                         flights.append(again)
-                progress.running = sum(1 for f in flights if f.worker is not None)
                 on_tick(progress)
                 if flights:
                     time.sleep(POLL_S)

@@ -161,31 +161,38 @@ def largest_survived_latency(outcomes: Mapping[float, bool | None]) -> float | N
     return survived
 
 
+# A panel of the stability map: one value of each of these axes; its cells are latency x loss.
+PANEL_AXES = ("mode", "world", "radio", "jitter_ms", "burst_frames", "controller", "vehicle_draw")
+
+
 def panels(rows: Sequence[Mapping]) -> dict[tuple, dict[tuple[float, float], dict]]:
-    """Latency x loss maps, one per combination of the other axes (mode first): panel key -> (latency, loss)
-    -> aggregate. Panel keys are (mode, world, radio, jitter, burst, controller, draw)."""
+    """Latency x loss maps, one per combination of the PANEL_AXES (mode first): panel key (values of
+    PANEL_AXES) -> (latency, loss) -> aggregate."""
     out: dict[tuple, dict] = defaultdict(dict)
     for key, agg in aggregate(rows).items():
         axes = dict(zip(AXES_BUT_SEED, key, strict=True))
-        panel = (axes["mode"], axes["world"], axes["radio"], axes["jitter_ms"], axes["burst_frames"],
-                 axes["controller"], axes["vehicle_draw"])
-        out[panel][(axes["latency_ms"], axes["loss_pct"])] = agg
+        out[tuple(axes[a] for a in PANEL_AXES)][(axes["latency_ms"], axes["loss_pct"])] = agg
     return dict(sorted(out.items()))
 
 
-def panel_title(panel: tuple, varying: Sequence[int]) -> str:
-    mode, world, radio, jitter, burst, controller, draw = panel
-    parts = [f"{mode} mode"]
-    names = {1: f"world {Path(world).stem if world else 'empty'}", 2: f"radio {Path(radio).stem}",
-             3: f"jitter {num(jitter)} ms", 4: f"burst {num(burst)} frames", 5: f"controller {controller or 'gains'}",
-             6: f"draw {draw}"}
-    parts += [names[i] for i in varying if i in names]
-    return ", ".join(parts)
+_AXIS_TEXT = {
+    "mode": lambda v: f"{v} mode", "world": lambda v: f"world {Path(v).stem if v else 'empty'}",
+    "radio": lambda v: f"radio {Path(v).stem}", "jitter_ms": lambda v: f"jitter {num(v)} ms",
+    "burst_frames": lambda v: f"burst {num(v)} frames", "controller": lambda v: f"controller {v or 'gains'}",
+    "vehicle_draw": lambda v: f"draw {v}",
+}
 
 
-def varying_axes(panel_keys: Iterable[tuple]) -> list[int]:
+def panel_title(panel: tuple, varying: Sequence[str]) -> str:
+    """The mode, and the value of every other panel axis that differs between panels."""
+    values = dict(zip(PANEL_AXES, panel, strict=True))
+    return ", ".join(_AXIS_TEXT[a](values[a]) for a in PANEL_AXES if a == "mode" or a in varying)
+
+
+def varying_axes(panel_keys: Iterable[tuple]) -> list[str]:
+    """The panel axes (besides the mode) whose value differs between panels."""
     keys = list(panel_keys)
-    return [i for i in range(1, 7) if len({k[i] for k in keys}) > 1]
+    return [a for i, a in enumerate(PANEL_AXES) if a != "mode" and len({k[i] for k in keys}) > 1]
 
 
 def survival_lines(rows: Sequence[Mapping]) -> list[str]:
