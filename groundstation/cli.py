@@ -185,11 +185,12 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
     if args.mode == "position" and getattr(args, "firmware", "crazyflie") != "crazyflie":
         raise UserError("argument --mode position: needs --firmware crazyflie (the ideal vehicle has no onboard "
                         "position controller)")
-    load_sensor_spec(args.sensor_spec)  # a bad file is one line here, before any process starts
     return SessionOptions(
         track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
         connection="zenoh", zenoh_options=zopts, prefix=args.prefix, vehicle_id=args.vehicle,
-        vehicle_model=args.vehicle_model, gains=args.gains, sensor_spec=args.sensor_spec,
+        vehicle_model=args.vehicle_model, gains=args.gains,
+        # loaded here: a bad file is one line before any process starts
+        sensor_spec=load_sensor_spec(args.sensor_spec),
         controller_variant=args.controller,
         latency_compensation=(args.latency_compensation if args.latency_compensation is not None
                               else COMPENSATION_DEFAULT[args.mode]), log_dir=Path(args.log) if args.log else None,

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.eskf import ErrorStateKF
-from estimator.sensor_spec import DEFAULT_SENSOR_SPEC, load_sensor_spec
+from estimator.sensor_spec import SensorSpec, load_sensor_spec
 from groundstation.clocks import LockstepClock, RealtimeClock
 from groundstation.compensation import LatencyCompensator
 from groundstation.controller import SE3Controller, load_gains
@@ -62,7 +62,8 @@ class SessionOptions:
     prefix: str = "cfstack"
     vehicle_id: int = 1
     vehicle_model: str = "crazyflie"
-    sensor_spec: str = DEFAULT_SENSOR_SPEC  # what the filter assumes of IMU and mocap (estimator/params/sensors)
+    # what the filter assumes of IMU and mocap (estimator/params/sensors)
+    sensor_spec: SensorSpec = field(default_factory=load_sensor_spec)
     gains: str = "gains"
     controller_variant: str | None = None  # None: the gains file's
     latency_compensation: bool = False
@@ -107,7 +108,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
                 clock_transport = None
                 clock = RealtimeClock(period, link)
             clock_box["clock"] = clock
-            estimator = ErrorStateKF(load_sensor_spec(opts.sensor_spec), vehicle.imu.rate_hz)
+            estimator = ErrorStateKF(opts.sensor_spec, vehicle.imu.rate_hz)
             controller = SE3Controller(vehicle, load_gains(opts.gains), variant=opts.controller_variant)
             mission = Mission(params, opts.track, opts.goal_enu_m, world, vehicle.collision_radius_m,
                               allow_reset=opts.allow_reset)
