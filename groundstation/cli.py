@@ -17,6 +17,7 @@ the child is another program.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import logging
 import os
 import subprocess
@@ -32,7 +33,7 @@ from groundstation.child_process import die_with_parent
 from groundstation.controller import VARIANTS as CONTROLLER_VARIANTS
 from groundstation.planned import plan_track
 from groundstation.preflight import checked_world
-from groundstation.session import DEFAULT_RATE_HZ, SessionOptions, dump_json, human_summary, run_session
+from groundstation.session import DEFAULT_RATE_HZ, Displays, SessionOptions, dump_json, human_summary, run_session
 from groundstation.trajectories.basic import make_builtin
 from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
@@ -89,6 +90,17 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
                    help="forward every mocap pose to the vehicle (MAVLink ATT_POS_MOCAP, as a mocap lab streams "
                         "extpose) for its onboard estimator (default: on, off with --firmware ideal)")
     g.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
+    d = p.add_argument_group("displays")
+    d.add_argument("--view", action="store_true", help="show the flight live in the rerun viewer (spawned)")
+    d.add_argument("--view-save", metavar="FILE.rrd", help="record the live view to a file instead (headless, CI)")
+    d.add_argument("--gcs", metavar="CONNECTION",
+                   help="forward the vehicle to a MAVLink ground-control station, e.g. udp:127.0.0.1:14550 "
+                        "(QGroundControl, mavproxy.py --master=udp:127.0.0.1:14550); any transport string")
+    d.add_argument("--gcs-origin", metavar="NAME|FILE", help="map origin shown to the GCS (default: gcs.toml's, "
+                   "lab; model/params/origin)")
+    d.add_argument("--gcs-commands", action="store_true",
+                   help="accept unsigned flight commands (land, arm) from the GCS; without it only frames signed "
+                        "with --signing-key-file are, and every command is logged to gcs_commands.csv")
     g.add_argument("-v", "--verbose", action="store_true")
     add_zenoh_arguments(p, mode_flag="--zenoh-mode")
     add_signing_arguments(p)
@@ -198,7 +210,28 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
         # fly and step know which emulated firmware they started; a ground station alone does not
         extra_summary={**extra, **({"firmware": args.firmware, "vehicle_draw": args.vehicle_draw}
                                    if hasattr(args, "firmware") else {})},
-        allow_reset=getattr(args, "reset", False), extpose=_extpose(args))
+        allow_reset=getattr(args, "reset", False), extpose=_extpose(args), displays=_displays(args))
+
+
+def _displays(args) -> Displays:
+    """--view/--view-save/--gcs*, checked (files loaded) before any process starts."""
+    if args.view and args.view_save:
+        raise UserError("argument --view: give --view or --view-save FILE.rrd, not both")
+    wants_view = args.view or args.view_save is not None
+    if wants_view and importlib.util.find_spec("rerun") is None:
+        raise UserError("argument --view: needs the rerun-sdk package (pip install \"cfstack[view]\")")
+    if args.gcs_origin and not args.gcs:
+        raise UserError("argument --gcs-origin: only with --gcs")
+    gcs = None
+    if args.gcs:
+        from groundstation.gcs_forward import gcs_connection, load_gcs_settings
+        from link.transports.table import parse_connection
+
+        parse_connection(gcs_connection(args.gcs))  # an unknown scheme is one line now
+        gcs = load_gcs_settings(origin=args.gcs_origin)
+    # the GCS link checks signatures with the same key, in a Signing of its own (its own streams and clock)
+    return Displays(view=args.view, view_save=args.view_save, gcs=args.gcs, gcs_settings=gcs,
+                    gcs_commands=args.gcs_commands, gcs_signing=signing_from_args(args) if gcs else None)
 
 
 def _extpose(args) -> bool:

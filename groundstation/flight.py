@@ -3,7 +3,8 @@
 Takes in: a VehicleLink (downlink IMU, heartbeats, TIMESYNC replies, status; mocap poses; truth for
 logs only), a clock (realtime or lockstep), the estimator, the controller, the mission, and a FlightLog.
 Gives out: thrust/moment or thrust/attitude setpoints and vehicle commands on the uplink, one log row
-per tick, and a FlightRecord (per-tick arrays) for the summary.
+per tick, a FlightRecord (per-tick arrays) for the summary, and TickFrames to its observers (the live
+view, the GCS forwarding), which only read them.
 
 The ground station never uses simulator truth for control: truth goes to the log and the grading only.
 """
@@ -11,6 +12,7 @@ The ground station never uses simulator truth for control: truth goes to the log
 from __future__ import annotations
 
 import logging
+import math
 import signal
 from collections import deque
 from dataclasses import dataclass, field
@@ -22,6 +24,7 @@ from groundstation.compensation import LatencyCompensator
 from groundstation.controller import ControllerState, SE3Controller
 from groundstation.flightlog import FlightLog
 from groundstation.mission import Mission, MissionParams, MissionStep, Phase, VehicleView
+from groundstation.tickframe import TickFrame
 from link.messages import (
     AttitudeTarget,
     BatteryStatus,
@@ -86,8 +89,12 @@ class FlightRecord:
 class FlightLoop:
     def __init__(self, link, clock, estimator: ErrorStateKF, controller: SE3Controller, mission: Mission,
                  params: MissionParams, flight_log: FlightLog, mode: str, period_s: float,
-                 compensator: LatencyCompensator | None = None, extpose: bool = False):
+                 compensator: LatencyCompensator | None = None, extpose: bool = False,
+                 observers: tuple = ()):
         self.link = link
+        # Displays (live view, GCS forwarding): each has period_s and observe(TickFrame), and is shown a
+        # frame at most every period_s of flight time; they read the flight and change nothing in it.
+        self.observers = [[observer, 0.0] for observer in observers]
         self.extpose = extpose  # forward each mocap pose to the vehicle, as a mocap lab streams extpose
         self.clock = clock
         self.estimator = estimator
@@ -322,11 +329,16 @@ class FlightLoop:
         realtime = self.clock.kind == "realtime" and self.clock.timer.work_s
         tick_ms = self.clock.timer.work_s[-1] * 1e3 if realtime else None
         view_age = None if est is None else self.mocap_age(now, est)
+        status = self.health.last_status
+        battery_v = None if status is None or math.isnan(status.voltage_v) else status.voltage_v
         self.log.row(now, step.phase.value, truth_vals, est_vals, sigma, ref, moment, attitude,
                      None if out is None else bool(out.saturated), view_age,
                      None if est is None else est.healthy, stats.tx_frames,
                      stats.rx_frames, stats.sequences.lost, rtt, tick_ms,
-                     None if est is None else est.time_s, None if truth is None else truth.time_s)
+                     None if est is None else est.time_s, None if truth is None else truth.time_s,
+                     battery_v)
+        if self.observers:
+            self._observe(now, step, est, truth, sigma, ref, out, battery_v, view_age, rtt, stats)
         record = self.record  # tuples, stacked into arrays once at the end (session.grade)
         record.t.append(now)
         record.phase.append(step.phase.value)
@@ -340,6 +352,33 @@ class FlightLoop:
         at_est = None if est is None else self.truth_at(est.time_s)
         record.truth_at_est.append(None if at_est is None else at_est[0])
         record.truth_vel_at_est.append(None if at_est is None else at_est[1])
+
+    def _observe(self, now, step, est, truth, sigma, ref, out, battery_v, mocap_age, rtt, stats) -> None:
+        due = [entry for entry in self.observers if now >= entry[1]]
+        if not due:
+            return
+        heartbeat = self.health.last_heartbeat
+        frame = TickFrame(
+            t_s=now, phase=step.phase.value,
+            truth_position_enu_m=None if truth is None else tuple(truth.position_enu_m),
+            truth_attitude_wxyz=None if truth is None else tuple(truth.attitude_wxyz),
+            est_position_enu_m=None if est is None else tuple(est.position_enu_m.tolist()),
+            est_velocity_enu_mps=None if est is None else tuple(est.velocity_enu_mps.tolist()),
+            est_attitude_wxyz=None if est is None else tuple(est.attitude_wxyz.tolist()),
+            est_sigma_position_m=None if sigma is None else sigma[:3],
+            ref_position_enu_m=None if ref is None else ref[:3],
+            cmd_thrust_n=None if out is None else float(out.thrust_n),
+            cmd_moment_flu_nm=None if out is None else tuple(float(m) for m in out.moment_flu_nm),
+            cmd_attitude_wxyz=None if out is None else tuple(float(q) for q in out.attitude_des_wxyz),
+            battery_v=battery_v, mocap_age_s=mocap_age, rtt_ms=rtt, uplink_sent=stats.tx_frames,
+            downlink_received=stats.rx_frames, downlink_lost=stats.sequences.lost,
+            est_healthy=None if est is None else bool(est.healthy),
+            armed=None if heartbeat is None else bool(heartbeat.armed),
+            battery_remaining_pct=None if self.health.last_status is None else self.health.last_status.remaining_pct,
+            est_rate_flu_radps=None if est is None else tuple(est.rate_flu_radps.tolist()))
+        for entry in due:
+            entry[0].observe(frame)
+            entry[1] = now + entry[0].period_s
 
     def truth_at(self, t_s: float):
         """(position, velocity) of the truth at time t_s, linearly interpolated, as tuples; None outside

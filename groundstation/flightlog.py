@@ -21,7 +21,7 @@ COLUMNS = (
     "ref_x_m,ref_y_m,ref_z_m,ref_vx_mps,ref_vy_mps,ref_vz_mps,"
     "cmd_thrust_n,cmd_mx_nm,cmd_my_nm,cmd_mz_nm,cmd_qw,cmd_qx,cmd_qy,cmd_qz,cmd_saturated,"
     "mocap_age_s,est_healthy,uplink_sent,downlink_received,downlink_lost,rtt_ms,tick_time_ms,est_time_s,"
-    "truth_time_s"
+    "truth_time_s,battery_v"
 ).split(",")
 
 _BLOCKS = {  # how many cells each group of values fills
@@ -77,15 +77,18 @@ class FlightLog:
     def row(self, t_s: float, phase: str, truth, estimate, sigma, reference, moment_cmd, attitude_cmd,
             saturated: bool | None, mocap_age_s: float | None, healthy: bool | None, uplink_sent: int,
             downlink_received: int, downlink_lost: int, rtt_ms: float | None, tick_time_ms: float | None,
-            est_time_s: float | None = None, truth_time_s: float | None = None) -> None:
+            est_time_s: float | None = None, truth_time_s: float | None = None,
+            battery_v: float | None = None) -> None:
         """One tick. est_time_s: the sample time (vehicle clock) of the newest IMU sample in the estimate
         the command was computed from - what end-to-end latency is measured from; truth_time_s: the sample
-        time of the truth in the row (so the estimate is graded against the truth at its own time)."""
+        time of the truth in the row (so the estimate is graded against the truth at its own time);
+        battery_v: the newest battery voltage the vehicle reported (SYS_STATUS), None before the first."""
         cells = (NUMBER % t_s, phase, _cells(truth, 10), _cells(estimate, 10), _cells(sigma, 9),
                  _cells(reference, 6), _cells(moment_cmd, 4), _cells(attitude_cmd, 4),
                  "" if saturated is None else str(int(saturated)), _cell(mocap_age_s),
                  "" if healthy is None else str(int(healthy)), str(uplink_sent), str(downlink_received),
-                 str(downlink_lost), _cell(rtt_ms), _cell(tick_time_ms), _cell(est_time_s), _cell(truth_time_s))
+                 str(downlink_lost), _cell(rtt_ms), _cell(tick_time_ms), _cell(est_time_s), _cell(truth_time_s),
+                 _cell(battery_v))
         self._states.write(",".join(cells) + "\n")
 
     def write_json(self, name: str, data: dict) -> None:

@@ -43,7 +43,7 @@ STATE_COLUMNS: tuple[str, ...] = (
     "tick_time_ms",
 )
 # Written by newer ground stations; NaN when a log predates them.
-OPTIONAL_COLUMNS: tuple[str, ...] = ("est_time_s", "truth_time_s")
+OPTIONAL_COLUMNS: tuple[str, ...] = ("est_time_s", "truth_time_s", "battery_v")
 TEXT_COLUMNS = frozenset({"phase"})
 NUMERIC_COLUMNS: tuple[str, ...] = tuple(c for c in STATE_COLUMNS if c not in TEXT_COLUMNS)
 

@@ -50,6 +50,18 @@ COURSE_SAME_POINT_M = 1e-9
 
 
 @dataclass
+class Displays:
+    """What watches the flight besides the log: the rerun view and a MAVLink GCS (none by default)."""
+
+    view: bool = False  # spawn the rerun viewer
+    view_save: str | None = None  # or record the view to this .rrd file
+    gcs: str | None = None  # GCS connection string (udp:HOST:PORT = udpout)
+    gcs_settings: object = None  # groundstation.gcs_forward.GcsSettings, loaded with the options
+    gcs_commands: bool = False  # accept unsigned flight commands from the GCS
+    gcs_signing: object = None  # link.mavlink.signing.Signing: commands signed with it are accepted
+
+
+@dataclass
 class SessionOptions:
     track: Trajectory
     goal_enu_m: np.ndarray
@@ -74,6 +86,7 @@ class SessionOptions:
     peer_failure: object = None  # callable: why the emulator child stopped, or None while it runs
     allow_reset: bool = False  # a vehicle already CRASHED at the start may be asked to reboot (--reset)
     extpose: bool = False  # forward each mocap pose to the vehicle (ExternalPose) for its onboard estimator
+    displays: Displays = field(default_factory=Displays)
 
 
 @dataclass
@@ -95,6 +108,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
         if opts.plan is not None:
             flight_log.write_json("plan.json", opts.plan)
         clock_box: dict = {}
+        observers: list = []
         link = VehicleLink(opts.connection, keys, ActuatorLimits.from_vehicle(vehicle),
                            clock=lambda: clock_box["clock"].now(), zenoh_options=opts.zenoh_options,
                            signing=opts.signing, tlog_path=flight_log.tlog_path,
@@ -113,11 +127,14 @@ def run_session(opts: SessionOptions) -> SessionResult:
             mission = Mission(params, opts.track, opts.goal_enu_m, world, vehicle.collision_radius_m,
                               allow_reset=opts.allow_reset)
             compensator = LatencyCompensator(vehicle, opts.mode, period) if opts.latency_compensation else None
+            observers = _open_displays(opts, log_dir, mission, rate)
             loop = FlightLoop(link, clock, estimator, controller, mission, params, flight_log, opts.mode, period,
-                              compensator, extpose=opts.extpose)
+                              compensator, extpose=opts.extpose, observers=tuple(observers))
             loop.run()
         finally:
             link.close()
+            for observer in observers:
+                observer.close()
             if clock_transport is not None:
                 clock_transport.close()
         summary = grade(loop, opts, params, log_dir, time.monotonic() - wall_start)
@@ -254,6 +271,24 @@ def _link_summary(loop: FlightLoop) -> dict:
         "downlink_lost": stats.rx_lost,
         "uplink_lost": stats.tx_frames - loop.health.uplink_received if reported else None,
     }
+
+
+def _open_displays(opts: SessionOptions, log_dir: Path, mission: Mission, rate_hz: float) -> list:
+    """The observers the options ask for (imported only then: rerun is an optional dependency)."""
+    d = opts.displays
+    observers = []
+    if d.view or d.view_save:
+        from groundstation.view.live import LiveView, load_view_settings, open_recording
+
+        recording = open_recording(d.view_save, f"flight {log_dir.name}")
+        observers.append(LiveView(recording, load_view_settings(), opts.world, opts.plan, opts.track))
+    if d.gcs:
+        from groundstation.gcs_forward import GcsForwarder, session_parameters
+
+        params = session_parameters(opts.mode, rate_hz, opts.vehicle_id, load_gains(opts.gains))
+        observers.append(GcsForwarder(d.gcs, d.gcs_settings, log_dir, params, signing=d.gcs_signing,
+                                      allow_commands=d.gcs_commands, mission=mission))
+    return observers
 
 
 def _timing(loop: FlightLoop, opts: SessionOptions, sim_time_s: float) -> dict:
