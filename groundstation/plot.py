@@ -20,6 +20,7 @@ import numpy as np
 from matplotlib import colors as mcolors
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 from groundstation.logread import FlightLog, read_log
@@ -96,6 +97,7 @@ def plot_log(log: FlightLog, out: Path,
         if world_note:
             notes.append(world_note)
         plots += [("trajectory_3d.png", lambda lg: plot_trajectory_3d(lg, world)),
+                  ("trajectory_top.png", lambda lg: plot_trajectory_top(lg, world)),
                   ("position_velocity.png", plot_position_velocity)]
     for name, make in plots:
         written.append(_save(make(log), out / name))
@@ -114,6 +116,7 @@ def plot_states(log: FlightLog, quantity: str) -> Figure:
         for i, ax in enumerate(axes):
             if np.isfinite(values[:, i]).any():
                 ax.plot(log.t_s, values[:, i], **SOURCE_STYLE[source])
+    _mark_phases(axes, log)
     symbol = "" if quantity == "position" else "v"
     for i, ax in enumerate(axes):
         ax.set_ylabel(f"{symbol}{AXES[i]} ({unit})")
@@ -197,7 +200,8 @@ def plot_estimator_error(log: FlightLog) -> Figure:
                     va="top", fontsize="small", bbox=dict(facecolor="white", alpha=0.8, linewidth=0))
             ax.set_ylabel(f"{'' if col == 0 else 'v'}{AXES[i]} error ({unit})")
             ax.grid(alpha=0.3)
-        grid[0, col].set_title(f"{quantity} error")
+        grid[0, col].set_title(f"{quantity} error", pad=14)
+        _mark_phases(grid[:, col], log)
         grid[-1, col].set_xlabel("time t (s)")
     # one legend for all six panels (they share the same two entries), below them so no data is hidden
     handles, labels = grid[0, 0].get_legend_handles_labels()
@@ -227,6 +231,7 @@ def plot_commands(log: FlightLog) -> Figure:
             _plot_with_saturation(ax_second, log.t_s, angles_deg[:, i], saturated, f"{name} command",
                                   AXIS_COLORS[i])
         ax_second.set_ylabel("attitude command (deg)")
+    _mark_phases((ax_thrust, ax_second), log)
     for ax in (ax_thrust, ax_second):
         ax.grid(alpha=0.3)
         _legend(ax, fontsize="small")
@@ -261,6 +266,7 @@ def plot_link_health(log: FlightLog, rate_window_s: float = DEFAULT_RATE_WINDOW_
                      "realtime to measure them)", transform=ax_tick.transAxes, ha="center", va="center",
                      fontsize="small", color="0.35")
     ax_tick.set_ylabel("tick time (ms)")
+    _mark_phases(axes, log)
     for ax in axes:
         ax.grid(alpha=0.3)
         _legend(ax, fontsize="small")
@@ -302,6 +308,7 @@ def plot_position_velocity(log: FlightLog) -> Figure:
                     label=f"{AXES[i]} reference")
         ax.grid(alpha=0.3)
         _legend(ax, fontsize="small", ncols=3)
+    _mark_phases((ax_p, ax_v), log)
     ax_p.set_ylabel("position (m)")
     ax_v.set_ylabel("velocity (m/s)")
     ax_v.set_xlabel("time t (s)")
@@ -344,6 +351,48 @@ def plot_trajectory_3d(log: FlightLog, world: World | None) -> Figure:
         title += f" ({plan.trajectory} trajectory)"
     ax.set_title(f"{title}: {_flight_name(log)}")
     return fig
+
+
+def plot_trajectory_top(log: FlightLog, world: World | None) -> Figure:
+    """Top-down view (x east, y north): blocks as their footprints (darker = taller), A* path, waypoints,
+    reference and flown path, so a maze's 3 m walls cannot hide the path as they do in the 3-D view."""
+    plan = log.plan
+    fig = Figure(figsize=(9.0, 7.0), dpi=FIG_DPI, layout="constrained")  # room for the legend beside the map
+    ax = fig.add_subplot()
+    if world is not None:
+        _draw_footprints(ax, world)
+    flown_source = _flown_source(log)
+    ref, flown = log.position_m("ref"), log.position_m(flown_source)
+    if plan is not None and len(plan.path_m):
+        ax.plot(*plan.path_m[:, :2].T, color="tab:gray", linewidth=0.8, label="A* path")
+    if plan is not None and len(plan.waypoints_m):
+        ax.scatter(*plan.waypoints_m[:, :2].T, color="tab:purple", s=18, zorder=3, label="waypoints")
+    ax.plot(*ref[:, :2].T, color="black", linestyle="--", linewidth=1.0, label="reference")
+    ax.plot(*flown[:, :2].T, color="tab:orange", linewidth=1.4, label=f"flown ({SOURCE_STYLE[flown_source]['label']})")
+    if world is not None:
+        for name, point, marker in (("start", world.start, "o"), ("goal", world.goal, "*")):
+            if point is not None:
+                ax.scatter(point[0], point[1], color="tab:green" if name == "start" else "tab:red", marker=marker,
+                           s=80, zorder=4, label=name)
+        ax.set_xlim(world.bounds[0], world.bounds[1])
+        ax.set_ylim(world.bounds[2], world.bounds[3])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.grid(alpha=0.3)
+    _legend(ax, fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the map, hiding none of it
+    name = Path(str(plan.world_path)).name if plan else "world"
+    ax.set_title(f"Top-down view of {name}: {_flight_name(log)}")
+    return fig
+
+
+def _draw_footprints(ax, world: World) -> None:
+    """Each block's x-y rectangle, shaded by its top height over the world's height (taller is darker)."""
+    z_low, z_high = float(world.bounds[4]), float(world.bounds[5])
+    for xmin, xmax, ymin, ymax, _, zmax in np.asarray(world.blocks, float).reshape(-1, 6):
+        shade = 0.25 + 0.6 * np.clip((zmax - z_low) / max(z_high - z_low, 1e-9), 0.0, 1.0)
+        ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, facecolor=(0.3, 0.3, 0.35, shade),
+                               edgecolor="none"))
 
 
 def block_color(color: object) -> tuple[float, float, float]:
@@ -456,6 +505,21 @@ def _shade_phases(ax, log: FlightLog) -> None:
         ax.axvspan(log.t_s[s], t_end, color=PHASE_COLORS.get(phase, "#f7f7f7"), alpha=0.6, linewidth=0,
                    label=None if phase in labelled else f"phase: {phase}")
         labelled.add(phase)
+
+
+def _mark_phases(axes, log: FlightLog) -> None:
+    """A dotted line at each change of flight phase on every panel, named above the first panel."""
+    if not len(log.phase):
+        return
+    changes = np.flatnonzero(log.phase[1:] != log.phase[:-1]) + 1
+    first = True
+    for ax in axes:
+        for index in changes:
+            ax.axvline(log.t_s[index], color="gray", linestyle=":", linewidth=0.8)
+            if first:
+                ax.text(log.t_s[index], 1.0, f" {log.phase[index]}", transform=ax.get_xaxis_transform(),
+                        rotation=90, va="bottom", ha="center", fontsize="x-small", color="dimgray", clip_on=False)
+        first = False
 
 
 def _flown_source(log: FlightLog) -> str:

@@ -11,6 +11,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.patches import Rectangle
 import pytest
 from testsupport import shared_world
 
@@ -24,7 +25,7 @@ MIN_PNG_BYTES = 10_000  # a blank 1100x700 canvas compresses to a few kB; a real
 TICK_HZ = 50.0
 RADIUS_M, HEIGHT_M, OMEGA_RADPS = 1.0, 1.0, 0.5
 BASE_FIGURES = ("position.png", "velocity.png", "tracking_error.png", "commands.png", "link_health.png")
-PLAN_FIGURES = ("trajectory_3d.png", "position_velocity.png")
+PLAN_FIGURES = ("trajectory_3d.png", "trajectory_top.png", "position_velocity.png")
 
 WORLD = {
     "bounds": {"extents": [-2.0, 2.0, -2.0, 2.0, 0.0, 2.0]},
@@ -279,3 +280,35 @@ def test_one_spike_does_not_set_the_scale_of_an_error_panel():
     # the panel says what it leaves out: the spike (and a rare tail sample beyond 1.2 x the 99.5th percentile)
     assert any("beyond the scale (max 0.1)" in t.get_text() for t in ax.texts)
     plt.close(fig)
+
+
+def test_top_down_view_shows_each_block_footprint_and_the_paths(tmp_path, world_file):
+    flight = read_log(write_log(tmp_path / "log", n=600, plan_world=world_file))
+    figure = plot.plot_trajectory_top(flight, plot.load_world(world_file))
+    ax = figure.axes[0]
+    rects = [p for p in ax.patches if isinstance(p, Rectangle)]
+    footprints = sorted((r.get_x(), r.get_y(), r.get_width(), r.get_height()) for r in rects)
+    expected = sorted((b["extents"][0], b["extents"][2], b["extents"][1] - b["extents"][0],
+                       b["extents"][3] - b["extents"][2]) for b in WORLD["blocks"])
+    np.testing.assert_allclose(footprints, expected)
+    tall = next(r for r in rects if r.get_x() == -0.2)  # 1.5 m of a 2 m room, the others 0.5 m
+    assert all(tall.get_facecolor()[3] > r.get_facecolor()[3] for r in rects if r is not tall)
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    np.testing.assert_allclose(lines["reference"].get_xydata(), flight.position_m("ref")[:, :2])
+    np.testing.assert_allclose(lines["flown (truth)"].get_xydata(), flight.position_m("truth")[:, :2])
+    assert ax.get_xlabel() == "x east (m)" and ax.get_ylabel() == "y north (m)"
+    assert ax.get_xlim() == (-2.0, 2.0) and ax.get_ylim() == (-2.0, 2.0)
+
+
+@pytest.mark.parametrize("make", [lambda lg: plot.plot_states(lg, "position"), plot.plot_commands,
+                                  plot.plot_link_health, plot.plot_position_velocity])
+def test_time_plots_mark_each_phase_change_on_every_panel(tmp_path, make):
+    flight = read_log(write_log(tmp_path / "log", n=600))  # takeoff until 1 s, track until 5 s, then land
+    figure = make(flight)
+    changes = [1.0, 5.0]
+    for ax in figure.axes:
+        marks = sorted(line.get_xdata()[0] for line in ax.get_lines() if line.get_linestyle() == ":"
+                       and np.ptp(line.get_xdata()) == 0 and line.get_color() == "gray")
+        np.testing.assert_allclose(marks, changes, atol=1.0 / TICK_HZ)
+    names = [t.get_text().strip() for t in figure.axes[0].texts]
+    assert "track" in names and "land" in names
