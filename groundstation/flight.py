@@ -338,7 +338,7 @@ class FlightLoop:
                      None if est is None else est.time_s, None if truth is None else truth.time_s,
                      battery_v)
         if self.observers:
-            self._observe(now, step, est, truth, sigma, ref, out, battery_v, view_age, rtt, stats)
+            self._observe(now, step, est, truth, sigma, ref, out, status, battery_v, view_age, rtt, stats)
         record = self.record  # tuples, stacked into arrays once at the end (session.grade)
         record.t.append(now)
         record.phase.append(step.phase.value)
@@ -353,7 +353,7 @@ class FlightLoop:
         record.truth_at_est.append(None if at_est is None else at_est[0])
         record.truth_vel_at_est.append(None if at_est is None else at_est[1])
 
-    def _observe(self, now, step, est, truth, sigma, ref, out, battery_v, mocap_age, rtt, stats) -> None:
+    def _observe(self, now, step, est, truth, sigma, ref, out, status, battery_v, mocap_age, rtt, stats) -> None:
         due = [entry for entry in self.observers if now >= entry[1]]
         if not due:
             return
@@ -374,7 +374,7 @@ class FlightLoop:
             downlink_received=stats.rx_frames, downlink_lost=stats.sequences.lost,
             est_healthy=None if est is None else bool(est.healthy),
             armed=None if heartbeat is None else bool(heartbeat.armed),
-            battery_remaining_pct=None if self.health.last_status is None else self.health.last_status.remaining_pct,
+            battery_remaining_pct=None if status is None else status.remaining_pct,
             est_rate_flu_radps=None if est is None else tuple(est.rate_flu_radps.tolist()))
         for entry in due:
             entry[0].observe(frame)

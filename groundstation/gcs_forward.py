@@ -59,7 +59,6 @@ class GcsForwarder:
         self.origin = settings.origin
         self.mission = mission
         self._armed = False
-        self._on_ground = True
         self._log_file = open(Path(log_dir) / "gcs_commands.csv", "w", newline="", buffering=1)
         self._log = csv.writer(self._log_file)
         self._log.writerow(["wall_time_s", "sim_time_s", "command", "params", "signed", "verdict"])
@@ -72,7 +71,6 @@ class GcsForwarder:
         if frame.est_position_enu_m is None:
             return  # nothing to show before the estimator's first pose
         self._armed = bool(frame.armed)
-        self._on_ground = frame.phase in ("connect", "arm", "disarm", "done", "reset")
         lat, lon, alt = self.origin.to_geodetic(frame.est_position_enu_m)
         self.link.publish(GcsSnapshot(
             time_s=frame.t_s, position_enu_m=frame.est_position_enu_m, velocity_enu_mps=frame.est_velocity_enu_mps,

@@ -123,11 +123,12 @@ def run_session(opts: SessionOptions) -> SessionResult:
                 clock = RealtimeClock(period, link)
             clock_box["clock"] = clock
             estimator = ErrorStateKF(opts.sensor_spec, vehicle.imu.rate_hz)
-            controller = SE3Controller(vehicle, load_gains(opts.gains), variant=opts.controller_variant)
+            gains = load_gains(opts.gains)
+            controller = SE3Controller(vehicle, gains, variant=opts.controller_variant)
             mission = Mission(params, opts.track, opts.goal_enu_m, world, vehicle.collision_radius_m,
                               allow_reset=opts.allow_reset)
             compensator = LatencyCompensator(vehicle, opts.mode, period) if opts.latency_compensation else None
-            observers = _open_displays(opts, log_dir, mission, rate)
+            observers = _open_displays(opts, log_dir, mission, rate, gains)
             loop = FlightLoop(link, clock, estimator, controller, mission, params, flight_log, opts.mode, period,
                               compensator, extpose=opts.extpose, observers=tuple(observers))
             loop.run()
@@ -273,7 +274,7 @@ def _link_summary(loop: FlightLoop) -> dict:
     }
 
 
-def _open_displays(opts: SessionOptions, log_dir: Path, mission: Mission, rate_hz: float) -> list:
+def _open_displays(opts: SessionOptions, log_dir: Path, mission: Mission, rate_hz: float, gains) -> list:
     """The observers the options ask for (imported only then: rerun is an optional dependency)."""
     d = opts.displays
     observers = []
@@ -285,7 +286,7 @@ def _open_displays(opts: SessionOptions, log_dir: Path, mission: Mission, rate_h
     if d.gcs:
         from groundstation.gcs_forward import GcsForwarder, session_parameters
 
-        params = session_parameters(opts.mode, rate_hz, opts.vehicle_id, load_gains(opts.gains))
+        params = session_parameters(opts.mode, rate_hz, opts.vehicle_id, gains)
         observers.append(GcsForwarder(d.gcs, d.gcs_settings, log_dir, params, signing=d.gcs_signing,
                                       allow_commands=d.gcs_commands, mission=mission))
     return observers

@@ -13,8 +13,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-Vec3 = tuple[float, float, float]
-Quat = tuple[float, float, float, float]
+from model.frames import Quat, Vec3
 
 
 @dataclass(frozen=True)

@@ -141,8 +141,7 @@ class GcsLink:
     def __init__(self, connection: str, params: dict[str, float], *, heartbeat_period_s: float = 1.0,
                  max_frames_per_s: int = 500, signing: Signing | None = None, allow_commands: bool = False,
                  on_command: Callable[[GcsCommand], Verdict] | None = None,
-                 on_command_logged: Callable[[GcsCommand, Verdict], None] | None = None,
-                 software_version: int = 0):
+                 on_command_logged: Callable[[GcsCommand, Verdict], None] | None = None):
         self._transport = open_transport(connection)
         self._params = {name[:PARAM_ID_LEN]: float(v) for name, v in params.items()}
         self._param_names = list(self._params)
@@ -152,7 +151,6 @@ class GcsLink:
         self._allow_commands = allow_commands
         self._on_command = on_command
         self._on_command_logged = on_command_logged
-        self._software_version = software_version
         self._mav = mav.MAVLink(None, srcSystem=VEHICLE_SYSTEM_ID, srcComponent=AUTOPILOT_COMPONENT_ID)  # sender
         self._pending: deque[GcsSnapshot] = deque(maxlen=64)  # the loop appends; the thread sends
         self._latest: GcsSnapshot | None = None
@@ -363,7 +361,7 @@ class GcsLink:
 
     def _send_autopilot_version(self) -> None:
         capabilities = mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
-        self._send(mav.MAVLink_autopilot_version_message(capabilities, self._software_version, 0, 0, 0,
+        self._send(mav.MAVLink_autopilot_version_message(capabilities, 0, 0, 0, 0,
                                                          bytes(8), bytes(8), bytes(8), 0, 0, 0))
 
 

@@ -11,8 +11,8 @@ import math
 from pathlib import Path
 
 import numpy as np
-from matplotlib.patches import Rectangle
 import pytest
+from matplotlib.patches import Rectangle
 from testsupport import shared_world
 
 from cfstack.cli import main as cfstack_main

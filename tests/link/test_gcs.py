@@ -43,14 +43,24 @@ class Gcs:
                 break
         return self.received
 
-    def send(self, message) -> None:
-        self.sock.sendto(message.pack(self.mav), self.vehicle)
+    def send(self, message, sender=None) -> None:
+        """Send from this GCS, packed by `sender` (a signing MAVLink) when given, else unsigned."""
+        self.sock.sendto(message.pack(sender or self.mav), self.vehicle)
 
     def of_type(self, kind: str) -> list:
         return [m for m in self.received if m.get_type() == kind]
 
     def close(self) -> None:
         self.sock.close()
+
+
+def signer(key: bytes):
+    """A pymavlink sender (system 255) that signs with key, its timestamp at now as a signer keeps it."""
+    sender = mav.MAVLink(None, srcSystem=255, srcComponent=190)
+    sender.signing.secret_key = key
+    sender.signing.sign_outgoing = True
+    sender.signing.timestamp = int((time.time() - MAVLINK_EPOCH_UNIX_S) * 100_000)
+    return sender
 
 
 def snapshot(t: float = 1.5, armed: bool = True) -> GcsSnapshot:
@@ -145,27 +155,16 @@ def test_flight_commands_need_a_signature_and_are_logged(pair):
     assert [(c.name, c.signed, v) for c, v in logged] == [("land", False, Verdict.DENIED),
                                                           ("set_mode", False, Verdict.DENIED)]
     # the same command signed with the link's key goes to the decision
-    signed = Gcs.__new__(Gcs)
-    signed.__dict__.update(gcs.__dict__)
-    signed.mav = mav.MAVLink(None, srcSystem=255, srcComponent=190)
-    signed.mav.signing.secret_key = KEY
-    signed.mav.signing.sign_outgoing = True
-    signed.mav.signing.timestamp = int((time.time() - MAVLINK_EPOCH_UNIX_S) * 100_000)  # now, as a signer keeps it
-    signed.mav.signing.allow_unsigned_callback = lambda _mav, _msgid: True  # the vehicle's replies are unsigned
-    signed.received = []
-    signed.send(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0))
-    signed.pump(2.0, until=lambda r: any(m.get_type() == "COMMAND_ACK" for m in r))
-    ack, = signed.of_type("COMMAND_ACK")
+    land = mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
+    gcs.received = []
+    gcs.send(land, sender=signer(KEY))
+    gcs.pump(2.0, until=lambda r: any(m.get_type() == "COMMAND_ACK" for m in r))
+    ack, = gcs.of_type("COMMAND_ACK")
     assert ack.result == mav.MAV_RESULT_ACCEPTED
     assert [(c.name, c.signed) for c in decided] == [("land", True)]
     # signed with another key: refused like an unsigned one
-    forged = mav.MAVLink(None, srcSystem=255, srcComponent=190)
-    forged.signing.secret_key = bytes(32)
-    forged.signing.sign_outgoing = True
-    forged.signing.timestamp = int((time.time() - MAVLINK_EPOCH_UNIX_S) * 100_000)
-    gcs.sock.sendto(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0).pack(forged),
-                    gcs.vehicle)
     gcs.received = []
+    gcs.send(land, sender=signer(bytes(32)))
     gcs.pump(2.0, until=lambda r: any(m.get_type() == "COMMAND_ACK" for m in r))
     assert gcs.of_type("COMMAND_ACK")[0].result == mav.MAV_RESULT_DENIED
     assert len(decided) == 1 and logged[-1][0].signed is False
