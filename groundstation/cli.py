@@ -31,10 +31,13 @@ import numpy as np
 from estimator.sensor_spec import DEFAULT_SENSOR_SPEC, load_sensor_spec
 from groundstation.child_process import die_with_parent
 from groundstation.controller import VARIANTS as CONTROLLER_VARIANTS
+from groundstation.planned import KINDS as PLANNED_KINDS
 from groundstation.planned import plan_track
 from groundstation.preflight import checked_world
 from groundstation.session import DEFAULT_RATE_HZ, Displays, SessionOptions, dump_json, human_summary, run_session
 from groundstation.trajectories.basic import make_builtin
+from groundstation.usercode.adapters import CONTROLLER_OUTPUTS
+from groundstation.usercode.loader import looks_like_path
 from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.base import free_loopback_port
@@ -83,9 +86,16 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
                    help="predict the state to when each command will act (one-way latency from TIMESYNC), "
                         "holding the commands already sent (default: on in moments mode, off in attitude mode; "
                         "see README, stability map)")
-    g.add_argument("--controller", choices=CONTROLLER_VARIANTS,
+    g.add_argument("--controller", metavar="report|full|PATH[:Class]",
                    help="SE(3) law: the lab report's (w_des = 0) or the full geometric controller with angular "
-                        "velocity/acceleration feed-forward (default: the gains file's variant)")
+                        "velocity/acceleration feed-forward (default: the gains file's variant); or a course-style "
+                        "controller file, PATH[:Class] (default class SE3Control; a directory means its "
+                        "se3_control.py), flown unchanged on our estimate (README: flying your own code)")
+    g.add_argument("--controller-output", choices=CONTROLLER_OUTPUTS, default="commands",
+                   help="what of a user controller's output is flown: commands (default: cmd_thrust with "
+                        "cmd_moment in moments mode, with cmd_q in attitude mode) or motor_speeds "
+                        "(cmd_motor_speeds through the course's '+' mixer, as the course's simulator flies them; "
+                        "moments mode)")
     g.add_argument("--extpose", action=argparse.BooleanOptionalAction, default=None,
                    help="forward every mocap pose to the vehicle (MAVLink ATT_POS_MOCAP, as a mocap lab streams "
                         "extpose) for its onboard estimator (default: on, off with --firmware ideal)")
@@ -110,7 +120,13 @@ def _planning_arguments(p: argparse.ArgumentParser) -> None:
     """What to fly: a built-in trajectory or one planned through a world (fly and groundstation)."""
     g = p.add_argument_group("trajectory and planning")
     g.add_argument("--trajectory", help="hover|line|circle; with a world that has a start and goal: "
-                   f"constant-speed|minsnap (default {DEFAULT_PLANNED}, planned from start to goal)")
+                   f"constant-speed|minsnap (default {DEFAULT_PLANNED}, planned from start to goal), or a "
+                   "course-style trajectory file PATH[:Class] (default class WorldTraj; a directory means its "
+                   "world_traj.py), built as Class(world, start, goal) before the flight")
+    g.add_argument("--planner", metavar="PATH[:function]",
+                   help="a course-style graph_search(world, resolution, margin, start, goal, astar) file (a "
+                        "directory means its graph_search.py): plans for constant-speed and minsnap instead of "
+                        "cfstack's A*")
     g.add_argument("--speed", type=positive_float, metavar="MPS",
                    help="planned speed, m/s (constant-speed: the speed; minsnap: the limit)")
     g.add_argument("--planning", default="planning",
@@ -167,13 +183,53 @@ def _world(path: str | None, vehicle_model: str) -> World | None:
     return world
 
 
-def _track(args, world: World | None):
-    """The trajectory to track and the goal: built-in, or planned through the world."""
+def _controller_variant(args) -> str | None:
+    """--controller's built-in law (None for the gains file's, or when it names user code)."""
+    value = args.controller
+    if value is None or value in CONTROLLER_VARIANTS:
+        return value
+    if looks_like_path(value):
+        return None
+    raise UserError(f"argument --controller: {value}: one of {', '.join(CONTROLLER_VARIANTS)} or a user "
+                    "controller file PATH[:Class]")
+
+
+def _user_code(args, world: World | None, objects: dict | None = None):
+    """The user's controller, trajectory and planner, loaded and constructed now, before any emulator runs
+    (a slow WorldTraj cannot make a handshake time out). objects: classes/functions from the Python API."""
+    named = dict(objects or {})
+    if args.controller is not None and args.controller not in CONTROLLER_VARIANTS:
+        named.setdefault("controller", args.controller)
+    trajectory = getattr(args, "trajectory", None)  # `step` flies its own step
+    if trajectory is not None and trajectory not in (*BUILTIN_TRAJECTORIES, *PLANNED_KINDS):
+        if not looks_like_path(trajectory):
+            raise UserError(f"--trajectory {trajectory}: one of {', '.join(BUILTIN_TRAJECTORIES + PLANNED_KINDS)}"
+                            " or a user trajectory file PATH[:Class]")
+        named.setdefault("trajectory", trajectory)
+    if getattr(args, "planner", None) is not None:
+        named.setdefault("planner", args.planner)
+    if not named:
+        if args.controller_output != "commands":
+            raise UserError("--controller-output motor_speeds: only with a user controller (--controller PATH)")
+        return None
+    from groundstation.usercode.host import prepare
+
+    return prepare(load_vehicle(args.vehicle_model), world, controller_output=args.controller_output,
+                   mode=args.mode, **named)
+
+
+def _track(args, world: World | None, user_code=None):
+    """The trajectory to track and the goal: the user's, built-in, or planned through the world."""
+    if user_code is not None and user_code.trajectory is not None:
+        track = user_code.trajectory
+        return track, np.array(world.goal, float), {"trajectory": track.where.rsplit(".", 1)[0],
+                                                    "planned_duration_s": track.duration_s}, None
     if world is not None and world.start is not None and world.goal is not None \
             and args.trajectory not in BUILTIN_TRAJECTORIES:
         planned = plan_track(world, args.trajectory or DEFAULT_PLANNED, load_vehicle(args.vehicle_model),
                              speed_mps=args.speed, resolution=args.resolution, margin=args.margin,
-                             accel_mps2=args.accel, planning=args.planning)
+                             accel_mps2=args.accel, planning=args.planning,
+                             planner=user_code.planner if user_code is not None else None)
         return planned.trajectory, planned.goal_enu_m, planned.summary, planned.plan
     name = args.trajectory or "hover"
     if name not in BUILTIN_TRAJECTORIES:
@@ -190,7 +246,7 @@ def _track(args, world: World | None):
     return track, np.asarray(track.sample(track.duration_s).position_m, float), {"trajectory": name}, None
 
 
-def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> SessionOptions:
+def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, user_code=None) -> SessionOptions:
     if args.mode == "position" and args.latency_compensation:
         raise UserError("argument --latency-compensation: not with --mode position (the vehicle's own position "
                         "controller flies the reference; there is no ground-station command to predict)")
@@ -203,7 +259,7 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict) -> 
         vehicle_model=args.vehicle_model, gains=args.gains,
         # loaded here: a bad file is one line before any process starts
         sensor_spec=load_sensor_spec(args.sensor_spec),
-        controller_variant=args.controller,
+        controller_variant=_controller_variant(args), user_code=user_code,
         latency_compensation=(args.latency_compensation if args.latency_compensation is not None
                               else COMPENSATION_DEFAULT[args.mode]), log_dir=Path(args.log) if args.log else None,
         signing=signing_from_args(args), plan=plan,
@@ -276,11 +332,12 @@ def groundstation_command(argv: list[str]) -> int:
                         "start) and fly from there; logged")
     args = _parsed(p, argv)
     world = _world(args.world, args.vehicle_model)
-    track, goal, extra, plan = _track(args, world)
+    user_code = _user_code(args, world)
+    track, goal, extra, plan = _track(args, world, user_code)
     zopts = zenoh_options_from_args(args)
     if not zopts.get("connect") and not zopts.get("listen"):
         zopts["connect"] = [DEFAULT_ENDPOINT]  # where `cfstack emulator` listens by default
-    result = run_session(_options(args, world, track, goal, extra, plan, args.clock, zopts))
+    result = run_session(_options(args, world, track, goal, extra, plan, args.clock, zopts, user_code))
     _explain_silence(result.summary, zopts)
     return _report(result.summary, args.json, p.prog)
 
@@ -345,18 +402,29 @@ class EmulatorChild:
 
 
 def fly_command(argv: list[str]) -> int:
+    p = fly_parser()
+    args = _parsed(p, argv)
+    return _report(fly(args).summary, args.json, p.prog)
+
+
+def fly_parser() -> OneLineParser:
     p = OneLineParser(prog="cfstack fly", description="One command: start an emulator, fly, land, log, summarise.")
     p.add_argument("world", nargs="?", help="world JSON file (default: an empty room)")
     _flight_arguments(p)
     _planning_arguments(p)
     _emulator_arguments(p)
-    args = _parsed(p, argv)
+    return p
+
+
+def fly(args: argparse.Namespace, objects: dict | None = None):
+    """`cfstack fly` with parsed arguments (the command line's, or cfstack.fly's); objects: user classes and
+    functions given as Python objects (the API). Returns the SessionResult."""
     world = _world(args.world, args.vehicle_model)
     airborne = not args.from_ground and world is not None and world.start is not None
-    track, goal, extra, plan = _track(args, world)
-    opts = _options(args, world, track, goal, extra, plan, args.clock, zenoh_options_from_args(args))
-    result = _fly_with_emulator(args, world, airborne, opts)
-    return _report(result.summary, args.json, p.prog)
+    user_code = _user_code(args, world, objects)
+    track, goal, extra, plan = _track(args, world, user_code)
+    opts = _options(args, world, track, goal, extra, plan, args.clock, zenoh_options_from_args(args), user_code)
+    return _fly_with_emulator(args, world, airborne, opts)
 
 
 def _fly_with_emulator(args, world: World | None, airborne: bool, opts: SessionOptions):

@@ -158,7 +158,9 @@ class SE3Controller:
         self._full = self.variant == "full"
         self._position_gains = (*gains.kp, *gains.kd)
 
-    def update(self, state: ControllerState, ref: FlatOutput) -> ControlOutput:
+    def update(self, state: ControllerState, ref: FlatOutput, t_s: float = 0.0) -> ControlOutput:  # noqa: ARG002
+        # t_s is unused (the law is time-invariant); it is the course's update(t, ...) argument, which the
+        # user-code adapter (groundstation.usercode) takes through this same call
         """One control step: thrust, moment and desired attitude for the current state and reference."""
         m = self.mass_kg
         kpx, kpy, kpz, kdx, kdy, kdz = self._position_gains

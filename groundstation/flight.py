@@ -227,7 +227,7 @@ class FlightLoop:
         else:
             state = ControllerState(position_enu_m=est.position_enu_m, velocity_enu_mps=est.velocity_enu_mps,
                                     attitude_wxyz=est.attitude_wxyz, rate_flu_radps=est.rate_flu_radps)
-        out = self.controller.update(state, reference)
+        out = self.controller.update(state, reference, now_s)
         if self.compensator is not None:
             self.compensator.record(now_s, out.thrust_n, out.moment_flu_nm, out.attitude_des_wxyz)
         if self.mode == "moments":

@@ -86,6 +86,7 @@ class MissionParams:
     mocap_hold_after_s: float
     mocap_descend_after_s: float
     downlink_silent_after_s: float
+    user_code_hold_s: float
     mocap_rate_min_hz: float
     mocap_rate_max_hz: float
     delivery_ratio_min: float
@@ -112,7 +113,7 @@ def load_mission_params(name_or_path: str = "mission") -> MissionParams:
         goal_position_tolerance_m=goal.number("position_tolerance_m", **pos),
         goal_speed_tolerance_mps=goal.number("speed_tolerance_mps", **pos),
         **{k: failsafe.number(k, **pos) for k in ("mocap_hold_after_s", "mocap_descend_after_s",
-                                                   "downlink_silent_after_s")},
+                                                   "downlink_silent_after_s", "user_code_hold_s")},
         **{k: health.number(k, **pos) for k in ("mocap_rate_min_hz", "mocap_rate_max_hz", "delivery_ratio_min",
                                                  "latency_max_ms")},
         landing=LandingSettings(**{k: landing.number(k, **positive) for k in (
@@ -181,6 +182,8 @@ class Mission:
         self.crash_seen: tuple[float, str] | None = None  # (time, phase) when the vehicle reported CRASHED
         self.resets = 0  # vehicles this session asked to reboot (and saw come back)
         self.abort_requested = False
+        self.user_code_fault: str | None = None  # the one-line fault of the user's code, once it failed
+        self._hold_before_landing_s = 0.0
         self._last_sent_s: dict[CommandKind, float] = {}  # when each repeated command last went out
 
     # --- helpers ---------------------------------------------------------------------------------
@@ -224,7 +227,8 @@ class Mission:
         self.landing.on_block = spot.on_pad if spot.on_pad >= 0 else None
         move = Line(here, spot.above_m, speed_mps=self.p.landing_move_speed_mps)
         descent = Line(spot.above_m, spot.touchdown_m, speed_mps=self.p.landing_speed_mps)
-        self._enter(Phase.LAND, t, Chain(move, descent))
+        hold = (Hover(here, self._hold_before_landing_s),) if self._hold_before_landing_s > 0 else ()
+        self._enter(Phase.LAND, t, Chain(*hold, move, descent))
 
     def _landing_spot(self, here: np.ndarray) -> LandingSpot | None:
         if self.world is None:  # an empty room: straight down to the floor
@@ -247,6 +251,13 @@ class Mission:
         """Ctrl-C: land and disarm first."""
         self.abort_requested = True
 
+    def user_code_failed(self, line: str) -> None:
+        """The user's controller or trajectory failed (`line` says how): hold, then land, as a failsafe."""
+        if self.user_code_fault is None:
+            self.user_code_fault = line
+            self._hold_before_landing_s = self.p.user_code_hold_s
+            self.abort_requested = True
+
     # --- the state machine -----------------------------------------------------------------------
     def update(self, t: float, view: VehicleView | None) -> MissionStep:
         if self.phase == Phase.DONE:
@@ -261,6 +272,8 @@ class Mission:
         if failsafe is not None:
             return failsafe
         if self.abort_requested and self.phase in _ABORTABLE_PHASES:
+            if self.user_code_fault is not None and self.result is None:
+                self._fail(t, "failsafe", self.user_code_fault)
             self.result = self.result or "aborted"
             if self.phase == Phase.ARM or not view.armed:
                 self._enter(Phase.DISARM, t)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from groundstation.planning import load_planning_params
-from groundstation.planning.astar import plan_path
+from groundstation.planning.astar import PathResult, plan_path
 from groundstation.trajectories.constant_speed import ConstantSpeedSettings, ConstantSpeedTrajectory, downsample_path
 from groundstation.trajectories.minsnap import MinSnapSettings, plan_min_snap
 from groundstation.trajectory import Trajectory
@@ -62,7 +62,8 @@ def grid_settings(world: World, resolution: list[float] | None, margin: float | 
 
 def plan_track(world: World, kind: str, vehicle: Vehicle, speed_mps: float | None = None,
                resolution: list[float] | None = None, margin: float | None = None,
-               accel_mps2: float | None = None, planning: str = "planning") -> PlannedTrack:
+               accel_mps2: float | None = None, planning: str = "planning", planner=None) -> PlannedTrack:
+    """planner: a user's graph_search (groundstation.usercode.adapters.user_planner) instead of our A*."""
     if world.start is None or world.goal is None:
         raise UserError(f"{world.source}: the world has no start and goal to plan between")
     if kind not in KINDS:
@@ -72,7 +73,10 @@ def plan_track(world: World, kind: str, vehicle: Vehicle, speed_mps: float | Non
     params = load_planning_params(planning)
     res, m = grid_settings(world, resolution, margin, params)
     t0 = time.perf_counter()
-    result = plan_path(world, res, m, batch_width_voxels=params.table("grid").number("batch_width_voxels"))
+    if planner is None:
+        result = plan_path(world, res, m, batch_width_voxels=params.table("grid").number("batch_width_voxels"))
+    else:
+        result = _user_path(planner, world, res, m)
     if not result.found:
         raise NoPathError(f"{world.source}: no path from start to goal at resolution "
                           f"{res.tolist()} m and margin {m} m ({result.message})")
@@ -101,5 +105,19 @@ def plan_track(world: World, kind: str, vehicle: Vehicle, speed_mps: float | Non
         "speed_mps": speed, "path": result.path_m.tolist(), "waypoints": np.asarray(waypoints).tolist(),
         "astar_length_m": result.length_m, "nodes_expanded": result.nodes_expanded,
     }
+    if planner is not None:
+        record["planner"] = getattr(planner, "where", "user")
     summary = {"planning_time_s": planning_time, "trajectory": kind, "planned_duration_s": trajectory.duration_s}
     return PlannedTrack(trajectory, np.array(world.goal, float), record, summary)
+
+
+def _user_path(planner, world: World, res: np.ndarray, margin_m: float) -> PathResult:
+    """The user's graph_search result as a PathResult (nodes_expanded -1 when it does not say)."""
+    t0 = time.perf_counter()
+    path, nodes = planner(world, res, margin_m, world.start, world.goal)
+    elapsed = time.perf_counter() - t0
+    if path is None:
+        return PathResult(False, np.zeros((0, 3)), np.inf, -1 if nodes is None else nodes, elapsed,
+                          "the user's graph_search returned no path")
+    length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    return PathResult(True, path, length, -1 if nodes is None else nodes, elapsed)

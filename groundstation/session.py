@@ -8,6 +8,7 @@ Grading uses simulator truth when the link provides it (simulation only); contro
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -87,6 +88,7 @@ class SessionOptions:
     allow_reset: bool = False  # a vehicle already CRASHED at the start may be asked to reboot (--reset)
     extpose: bool = False  # forward each mocap pose to the vehicle (ExternalPose) for its onboard estimator
     displays: Displays = field(default_factory=Displays)
+    user_code: object = None  # groundstation.usercode.host.UserCode: the user's controller/trajectory/planner
 
 
 @dataclass
@@ -125,14 +127,21 @@ def run_session(opts: SessionOptions) -> SessionResult:
             estimator = ErrorStateKF(opts.sensor_spec, vehicle.imu.rate_hz)
             gains = load_gains(opts.gains)
             controller = SE3Controller(vehicle, gains, variant=opts.controller_variant)
+            if opts.user_code is not None:  # the user's SE3Control; ours stays as its failsafe
+                controller = opts.user_code.controller_for(vehicle, controller, opts.mode, log_dir)
             mission = Mission(params, opts.track, opts.goal_enu_m, world, vehicle.collision_radius_m,
                               allow_reset=opts.allow_reset)
+            if opts.user_code is not None:
+                opts.user_code.attach(mission, period if opts.clock == "realtime" else None)
             compensator = LatencyCompensator(vehicle, opts.mode, period) if opts.latency_compensation else None
             observers = _open_displays(opts, log_dir, mission, rate, gains)
             loop = FlightLoop(link, clock, estimator, controller, mission, params, flight_log, opts.mode, period,
                               compensator, extpose=opts.extpose, observers=tuple(observers))
-            loop.run()
+            with opts.user_code.guard if opts.user_code is not None else contextlib.nullcontext():
+                loop.run()
         finally:
+            if opts.user_code is not None:
+                opts.user_code.close()
             link.close()
             for observer in observers:
                 observer.close()
@@ -194,6 +203,8 @@ def grade(loop: FlightLoop, opts: SessionOptions, params, log_dir: Path, wall_s:
     }
     summary["flight_time_s"] = summary["time_to_goal_s"]  # the name earlier summaries (and sweeps) used
     summary["timing"] = _timing(loop, opts, summary["sim_time_s"])
+    if opts.user_code is not None:
+        summary["user_code"] = opts.user_code.summary()
     summary.update(opts.extra_summary)
     return summary
 
@@ -341,6 +352,8 @@ def human_summary(summary: dict) -> str:
         lines.append(f"estimator rms error {est['rms_position_error_m'] * 1e3:.2f} mm, "
                      f"{est['rms_velocity_error_mps'] * 1e2:.2f} cm/s{consistency}")
     lines.append(_link_line(summary["link"]))
+    if summary.get("user_code"):
+        lines.append(_user_code_line(summary["user_code"]))
     lines.append(f"{summary['sim_time_s']:.2f} s simulated in {summary['wall_time_s']:.2f} s wall"
                  f"{_loop_speed(summary.get('timing', {}))}; logs in {summary['log_dir']}")
     return "\n".join(lines)
@@ -361,6 +374,19 @@ def _result_line(summary: dict) -> str:
     elif summary.get("failsafe_reason"):
         line += f" ({summary['failsafe_reason']})"
     return line
+
+
+def _user_code_line(user: dict) -> str:
+    """The user's own time per call (wall time: in lockstep it slows the run, never changes it)."""
+    parts = []
+    for name, key in (("controller", "controller_update"), ("trajectory", "trajectory_update")):
+        times = user.get(key)
+        if times and times.get("calls"):
+            parts.append(f"{user[name]}.update p50 {times['p50_ms']:.3f} ms p99 {times['p99_ms']:.3f} ms "
+                         f"({times['calls']} calls)")
+    if user.get("realtime_overruns"):
+        parts.append(f"{user['realtime_overruns']} calls over the control period")
+    return "user code: " + ("; ".join(parts) or "no calls")
 
 
 def _link_line(link: dict) -> str:

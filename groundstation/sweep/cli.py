@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from groundstation.controller import VARIANTS as CONTROLLERS
+from groundstation.planned import KINDS as PLANNED_KINDS
 from groundstation.preflight import checked_world
 from groundstation.sweep.cell_task import CellJob
 from groundstation.sweep.grid import (
@@ -37,6 +38,8 @@ from groundstation.sweep.grid import (
 from groundstation.sweep.plot import plot_sweep
 from groundstation.sweep.runner import DaskRunner, Progress
 from groundstation.sweep.table import cell_of, done, read_csv, survival_lines, table_text, write_tables
+from groundstation.usercode.adapters import CONTROLLER_OUTPUTS
+from groundstation.usercode.loader import looks_like_path, split_spec
 from model.errors import OneLineParser, UserError
 from model.options import positive_float, seed, whole_number
 from model.vehicle import default_vehicle_model, load_vehicle
@@ -68,8 +71,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--radio", action="append", metavar="PROFILE",
                    help=f"base radio profiles, built-in names or TOML files; repeat for several "
                         f"(default {DEFAULT_BASE_PROFILE})")
-    p.add_argument("--controller", action="append", choices=CONTROLLERS,
-                   help="fly's --controller variants; repeat for several (default: the gains file's)")
+    p.add_argument("--controller", action="append", type=_controller_axis, metavar="report|full|PATH[:Class]",
+                   help="fly's --controller: a variant or a user controller file; repeat for several (default: the "
+                        "gains file's). A file must be readable at the same path on every worker")
+    p.add_argument("--controller-output", choices=CONTROLLER_OUTPUTS,
+                   help="fly's --controller-output for user controllers (default: commands)")
+    p.add_argument("--trajectory", metavar="NAME|PATH[:Class]",
+                   help="fly's --trajectory for every flight: a built-in or planned kind, or a user trajectory file")
+    p.add_argument("--planner", metavar="PATH[:function]", help="fly's --planner for every flight (a user "
+                   "graph_search file)")
     p.add_argument("--vehicle-draw", action="append", metavar="PROFILE",
                    help="vehicle variation profiles (see `cfstack fly --help`); repeat for several "
                         "(default nominal); each flight's draw comes from its seed")
@@ -115,6 +125,21 @@ def parse_number_list(texts: Iterable[str], flag: str, maximum: float | None = N
     if not values:
         raise UserError(f"{flag}: no values given")
     return tuple(sorted(values))
+
+
+def _controller_axis(value: str) -> str:
+    """A --controller value: a variant, or a user file made absolute (workers do not share our cwd)."""
+    if value in CONTROLLERS:
+        return value
+    if not looks_like_path(value) and not Path(value).is_file():
+        raise UserError(f"argument --controller: {value}: one of {', '.join(CONTROLLERS)} or a user controller file "
+                        "PATH[:Class]")
+    return _user_file(value, "controller")
+
+
+def _user_file(value: str, kind: str) -> str:
+    path, name = split_spec(value, kind)
+    return f"{path}:{name}"
 
 
 def _check_extra(extra: str) -> tuple[str, ...]:
@@ -180,7 +205,20 @@ def parse_options(argv: Sequence[str]) -> SweepOptions:
         controllers=tuple(dict.fromkeys(args.controller or [""])), vehicle_draws=draws,
         seeds=tuple(range(args.seed, args.seed + args.seeds)), jobs=args.jobs, out=Path(args.out),
         extra=extra, latency_compensation=args.latency_compensation, timeout_s=args.timeout, resume=args.resume,
-        firmware=args.firmware, scheduler=args.scheduler)
+        firmware=args.firmware, scheduler=args.scheduler, user_options=_user_options(args))
+
+
+def _user_options(args) -> tuple[str, ...]:
+    """--trajectory/--planner/--controller-output for every flight (user files made absolute)."""
+    options: list[str] = []
+    if args.trajectory is not None:
+        builtin = args.trajectory in PLANNED_KINDS or not looks_like_path(args.trajectory)
+        options += ["--trajectory", args.trajectory if builtin else _user_file(args.trajectory, "trajectory")]
+    if args.planner is not None:
+        options += ["--planner", _user_file(args.planner, "planner")]
+    if args.controller_output is not None:
+        options += ["--controller-output", args.controller_output]
+    return tuple(options)
 
 
 class ProgressBar:
@@ -240,7 +278,7 @@ def progress_line(done: int, total: int, elapsed_s: float, eta_s: float | None, 
 
 def _jobs(opts: SweepOptions, cells: Sequence[Cell], bases: dict) -> list[CellJob]:
     worlds = {w: Path(w).read_text() for w in {c.world for c in cells} if w}
-    options = [*opts.extra]
+    options = [*opts.extra, *opts.user_options]
     if opts.latency_compensation is not None:
         options.append("--latency-compensation" if opts.latency_compensation else "--no-latency-compensation")
     jobs = []

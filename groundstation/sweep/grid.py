@@ -47,6 +47,7 @@ class SweepOptions:
     resume: bool = False
     firmware: str = "crazyflie"  # the emulated vehicle's onboard side (fly --firmware)
     scheduler: str | None = None  # tcp://HOST:PORT of a running dask scheduler; None: a LocalCluster
+    user_options: tuple[str, ...] = ()  # --trajectory/--planner/--controller-output for every flight
 
     def settings(self) -> dict:
         """What makes two sweeps' rows comparable (written to sweep.json, checked by --resume)."""
@@ -90,14 +91,22 @@ class Cell:
     @property
     def slug(self) -> str:
         return (f"{self.world_name}_{self.mode}_{self.radio_name}_lat{num(self.latency_ms)}_jit{num(self.jitter_ms)}"
-                f"_loss{num(self.loss_pct)}_burst{num(self.burst_frames)}_{self.controller or 'gains'}"
+                f"_loss{num(self.loss_pct)}_burst{num(self.burst_frames)}_{self.controller_name}"
                 f"_{Path(self.vehicle_draw).stem}_s{self.seed}")
 
     @property
     def label(self) -> str:
         return (f"{self.world_name} {self.mode} {self.radio_name} {num(self.latency_ms)} ms "
                 f"+-{num(self.jitter_ms)} ms {num(self.loss_pct)} % burst {num(self.burst_frames)} "
-                f"{self.controller or 'gains'} {self.vehicle_draw} seed {self.seed}")
+                f"{self.controller_name} {self.vehicle_draw} seed {self.seed}")
+
+    @property
+    def controller_name(self) -> str:
+        """The controller axis in names: the variant, 'gains', or a user file's stem and class."""
+        if not self.controller:
+            return "gains"
+        path, _, name = self.controller.rpartition(":")
+        return f"{Path(path).stem}-{name}" if path else self.controller
 
     @staticmethod
     def field_names() -> tuple[str, ...]:

@@ -14,6 +14,7 @@ import dataclasses
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -91,7 +92,8 @@ def test_extra_arguments_are_split_like_a_shell_even_when_they_look_like_options
     (["--seed", "-1"], "--seed"),
     (["--timeout", "0"], "--timeout"),
     (["--mode", "rates"], "invalid choice"),
-    (["--controller", "mine"], "invalid choice"),
+    (["--controller", "mine"], "one of report, full or a user controller file"),
+    (["--controller", "/no/such/se3_control.py"], "no such file"),
     (["--extra", "--radio lab"], "--radio is set by the sweep"),
     (["--extra", "--seed=3"], "--seed is set by the sweep"),
     (["--extra", "--controller full"], "--controller is set by the sweep"),
@@ -381,9 +383,11 @@ def test_local_cluster_grid_with_two_seeds_then_resume_does_nothing(local_grid):
     assert other.returncode == 2 and "extra" in other.stderr
 
 
-def _start(argv: list[str]) -> subprocess.Popen:
-    return subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            start_new_session=True)
+def _start(argv: list[str], log: Path) -> subprocess.Popen:
+    """Start a dask process with its log in a file (an unread pipe would fill and stall it)."""
+    with log.open("w") as sink:
+        return subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=sink, stderr=subprocess.STDOUT,
+                                start_new_session=True)
 
 
 def _kill(proc: subprocess.Popen) -> None:
@@ -398,18 +402,35 @@ def _dask(*args: str) -> list[str]:
     return [str(Path(sys.executable).with_name("dask")), *args]
 
 
+def _wait_until_listening(proc: subprocess.Popen, port: int, log: Path, timeout_s: float = 120.0) -> None:
+    """Wait as a user waits for `Scheduler at:`: until the port accepts (a busy machine takes seconds)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, f"dask scheduler exited: {log.read_text()[-2000:]}"
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+            return
+        except OSError:
+            time.sleep(0.2)
+    raise AssertionError(f"dask scheduler not listening after {timeout_s} s: {log.read_text()[-2000:]}")
+
+
 @pytest.fixture
-def dask_cluster():
+def dask_cluster(tmp_path):
     """A scheduler and workers started as the README starts them; yields (address, start_worker)."""
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
-    procs = [_start(_dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0"))]
+    scheduler_log = tmp_path / "scheduler.log"
+    procs = [_start(_dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0"),
+                    scheduler_log)]
 
     def start_worker() -> subprocess.Popen:
-        procs.append(_start(_dask("worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard")))
+        procs.append(_start(_dask("worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"),
+                            tmp_path / f"worker{len(procs)}.log"))
         return procs[-1]
 
     try:
+        _wait_until_listening(procs[0], port, scheduler_log)
         yield address, start_worker
     finally:
         for proc in reversed(procs):
