@@ -105,21 +105,36 @@ def _import_file(module_name: str, path: Path) -> types.ModuleType:
 
 
 def mount(directory: Path) -> None:
-    """Make the course's imports resolve for files in `directory` (idempotent; directories accumulate)."""
+    """Make the course's imports resolve for files in `directory`, and for nothing else: the modules a
+    previously mounted folder imported are forgotten first, so one student's `graph_search` is never
+    another's (objects already loaded keep their own modules)."""
     directory = Path(directory).resolve()
+    _forget_user_modules()
     _put_on_path(str(COMPAT_ROOT), front=True)
-    if str(directory) in sys.path:
-        sys.path.remove(str(directory))
+    for old in _mounted:
+        if old in sys.path:
+            sys.path.remove(old)
+    _mounted[:] = [str(directory)]
     sys.path.insert(0, str(directory))
     _put_on_path(str(COURSE_CODE), front=False)
     outer = sys.modules.get("proj1_3") or _package("proj1_3", [])
-    code = sys.modules.get(COURSE_PACKAGE) or _package(COURSE_PACKAGE, [str(COURSE_CODE)])
+    code = sys.modules.get(COURSE_PACKAGE) or _package(COURSE_PACKAGE, [])
     outer.code = code
-    locations = code.__path__  # the latest user directory first: its relative imports find its own files
-    if str(directory) in locations:
-        locations.remove(str(directory))
-    locations.insert(0, str(directory))
+    code.__path__[:] = [str(directory), str(COURSE_CODE)]  # its own files first, then the course's helpers
     importlib.invalidate_caches()
+
+
+_mounted: list[str] = []  # the user folder currently on sys.path
+
+
+def _forget_user_modules() -> None:
+    """Drop `proj1_3.code.*` and flat-imported modules loaded from a user folder or compat/course_code."""
+    folders = {Path(d) for d in _mounted} | {COURSE_CODE}
+    for name, module in list(sys.modules.items()):
+        file = getattr(module, "__file__", None)
+        flat = "." not in name and file is not None and Path(file).resolve().parent in folders
+        if name.startswith(COURSE_PACKAGE + ".") or flat:
+            del sys.modules[name]
 
 
 def _package(name: str, locations: list[str]) -> types.ModuleType:

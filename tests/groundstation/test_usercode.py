@@ -69,8 +69,12 @@ def test_plus_mixer_is_the_courses_to_TM_matrix():
 def test_absolute_relative_and_flat_imports_resolve(tmp_path):
     a = loader.load(str(STUDENTS / "student_a"), "trajectory")  # from proj1_3.code.graph_search import ...
     assert a.name == "WorldTraj" and a.file == (STUDENTS / "student_a" / "world_traj.py").resolve()
-    b = loader.load(str(STUDENTS / "student_b" / "world_traj.py"), "trajectory")  # from .graph_search (ours)
-    assert sys.modules[b.obj.__module__].graph_search.__module__.endswith("graph_search")
+    assert Path(a.obj.__init__.__globals__["graph_search"].__code__.co_filename).parent.name == "student_a"
+    # student_b has no graph_search.py: its `from .graph_search import` is the course's (ours), never the
+    # student_a one loaded just before in this process
+    b = loader.load(str(STUDENTS / "student_b" / "world_traj.py"), "trajectory")
+    b_search = b.obj.__init__.__globals__["graph_search"]
+    assert Path(b_search.__code__.co_filename).parent == loader.COURSE_CODE
     flat = tmp_path / "flat_style"
     flat.mkdir()
     (flat / "my_traj.py").write_text(textwrap.dedent("""
