@@ -37,7 +37,7 @@ from groundstation.preflight import checked_world
 from groundstation.session import DEFAULT_RATE_HZ, Displays, SessionOptions, dump_json, human_summary, run_session
 from groundstation.trajectories.basic import make_builtin
 from groundstation.usercode.adapters import CONTROLLER_OUTPUTS
-from groundstation.usercode.loader import looks_like_path
+from groundstation.usercode.loader import builtin_or_user_file
 from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.base import free_loopback_port
@@ -185,32 +185,22 @@ def _world(path: str | None, vehicle_model: str) -> World | None:
 
 def _controller_variant(args) -> str | None:
     """--controller's built-in law (None for the gains file's, or when it names user code)."""
-    value = args.controller
-    if value is None or value in CONTROLLER_VARIANTS:
-        return value
-    if looks_like_path(value):
-        return None
-    raise UserError(f"argument --controller: {value}: one of {', '.join(CONTROLLER_VARIANTS)} or a user "
-                    "controller file PATH[:Class]")
+    return builtin_or_user_file(args.controller, CONTROLLER_VARIANTS, "controller")[0]
 
 
 def _user_code(args, world: World | None, objects: dict | None = None):
     """The user's controller, trajectory and planner, loaded and constructed now, before any emulator runs
     (a slow WorldTraj cannot make a handshake time out). objects: classes/functions from the Python API."""
     named = dict(objects or {})
-    if args.controller is not None and args.controller not in CONTROLLER_VARIANTS:
-        named.setdefault("controller", args.controller)
-    trajectory = getattr(args, "trajectory", None)  # `step` flies its own step
-    if trajectory is not None and trajectory not in (*BUILTIN_TRAJECTORIES, *PLANNED_KINDS):
-        if not looks_like_path(trajectory):
-            raise UserError(f"--trajectory {trajectory}: one of {', '.join(BUILTIN_TRAJECTORIES + PLANNED_KINDS)}"
-                            " or a user trajectory file PATH[:Class]")
-        named.setdefault("trajectory", trajectory)
-    if getattr(args, "planner", None) is not None:
-        named.setdefault("planner", args.planner)
-    if not named:
-        if args.controller_output != "commands":
-            raise UserError("--controller-output motor_speeds: only with a user controller (--controller PATH)")
+    trajectories = (*BUILTIN_TRAJECTORIES, *PLANNED_KINDS)
+    files = {"controller": builtin_or_user_file(args.controller, CONTROLLER_VARIANTS, "controller")[1],
+             # `step` flies its own step: it has no --trajectory or --planner
+             "trajectory": builtin_or_user_file(getattr(args, "trajectory", None), trajectories, "trajectory")[1],
+             "planner": getattr(args, "planner", None)}
+    for kind, spec in files.items():
+        if spec is not None:
+            named.setdefault(kind, spec)
+    if not named and args.controller_output == "commands":
         return None
     from groundstation.usercode.host import prepare
 
@@ -222,7 +212,7 @@ def _track(args, world: World | None, user_code=None):
     """The trajectory to track and the goal: the user's, built-in, or planned through the world."""
     if user_code is not None and user_code.trajectory is not None:
         track = user_code.trajectory
-        return track, np.array(world.goal, float), {"trajectory": track.where.rsplit(".", 1)[0],
+        return track, np.array(world.goal, float), {"trajectory": track.name,
                                                     "planned_duration_s": track.duration_s}, None
     if world is not None and world.start is not None and world.goal is not None \
             and args.trajectory not in BUILTIN_TRAJECTORIES:

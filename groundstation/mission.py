@@ -183,7 +183,6 @@ class Mission:
         self.resets = 0  # vehicles this session asked to reboot (and saw come back)
         self.abort_requested = False
         self.user_code_fault: str | None = None  # the one-line fault of the user's code, once it failed
-        self._hold_before_landing_s = 0.0
         self._last_sent_s: dict[CommandKind, float] = {}  # when each repeated command last went out
 
     # --- helpers ---------------------------------------------------------------------------------
@@ -227,7 +226,7 @@ class Mission:
         self.landing.on_block = spot.on_pad if spot.on_pad >= 0 else None
         move = Line(here, spot.above_m, speed_mps=self.p.landing_move_speed_mps)
         descent = Line(spot.above_m, spot.touchdown_m, speed_mps=self.p.landing_speed_mps)
-        hold = (Hover(here, self._hold_before_landing_s),) if self._hold_before_landing_s > 0 else ()
+        hold = (Hover(here, self.p.user_code_hold_s),) if self.user_code_fault and self.p.user_code_hold_s > 0 else ()
         self._enter(Phase.LAND, t, Chain(*hold, move, descent))
 
     def _landing_spot(self, here: np.ndarray) -> LandingSpot | None:
@@ -255,7 +254,6 @@ class Mission:
         """The user's controller or trajectory failed (`line` says how): hold, then land, as a failsafe."""
         if self.user_code_fault is None:
             self.user_code_fault = line
-            self._hold_before_landing_s = self.p.user_code_hold_s
             self.abort_requested = True
 
     # --- the state machine -----------------------------------------------------------------------

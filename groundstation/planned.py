@@ -106,7 +106,7 @@ def plan_track(world: World, kind: str, vehicle: Vehicle, speed_mps: float | Non
         "astar_length_m": result.length_m, "nodes_expanded": result.nodes_expanded,
     }
     if planner is not None:
-        record["planner"] = getattr(planner, "where", "user")
+        record["planner"] = planner.where
     summary = {"planning_time_s": planning_time, "trajectory": kind, "planned_duration_s": trajectory.duration_s}
     return PlannedTrack(trajectory, np.array(world.goal, float), record, summary)
 
@@ -116,8 +116,7 @@ def _user_path(planner, world: World, res: np.ndarray, margin_m: float) -> PathR
     t0 = time.perf_counter()
     path, nodes = planner(world, res, margin_m, world.start, world.goal)
     elapsed = time.perf_counter() - t0
+    nodes = -1 if nodes is None else nodes
     if path is None:
-        return PathResult(False, np.zeros((0, 3)), np.inf, -1 if nodes is None else nodes, elapsed,
-                          "the user's graph_search returned no path")
-    length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
-    return PathResult(True, path, length, -1 if nodes is None else nodes, elapsed)
+        return PathResult(False, np.zeros((0, 3)), np.inf, nodes, elapsed, "the user's graph_search returned no path")
+    return PathResult(True, path, float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum()), nodes, elapsed)

@@ -39,7 +39,7 @@ from groundstation.sweep.plot import plot_sweep
 from groundstation.sweep.runner import DaskRunner, Progress
 from groundstation.sweep.table import cell_of, done, read_csv, survival_lines, table_text, write_tables
 from groundstation.usercode.adapters import CONTROLLER_OUTPUTS
-from groundstation.usercode.loader import looks_like_path, split_spec
+from groundstation.usercode.loader import builtin_or_user_file, looks_like_path, split_spec
 from model.errors import OneLineParser, UserError
 from model.options import positive_float, seed, whole_number
 from model.vehicle import default_vehicle_model, load_vehicle
@@ -129,12 +129,8 @@ def parse_number_list(texts: Iterable[str], flag: str, maximum: float | None = N
 
 def _controller_axis(value: str) -> str:
     """A --controller value: a variant, or a user file made absolute (workers do not share our cwd)."""
-    if value in CONTROLLERS:
-        return value
-    if not looks_like_path(value) and not Path(value).is_file():
-        raise UserError(f"argument --controller: {value}: one of {', '.join(CONTROLLERS)} or a user controller file "
-                        "PATH[:Class]")
-    return _user_file(value, "controller")
+    variant, spec = builtin_or_user_file(value, CONTROLLERS, "controller")
+    return variant or _user_file(spec, "controller")
 
 
 def _user_file(value: str, kind: str) -> str:

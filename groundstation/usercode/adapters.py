@@ -98,6 +98,7 @@ class UserController:
     def __init__(self, instance, where: str, vehicle: Vehicle, fallback: SE3Controller, mode: str, output: str,
                  guard: Guard, settings: UserCodeSettings, log_path: Path | None):
         self.instance = instance
+        self.name = where  # "se3_control.py SE3Control"
         self.where = f"{where}.update"
         self.vehicle = vehicle
         self.quad_params = quad_params_of(vehicle)
@@ -194,7 +195,7 @@ class UserController:
             tuple((velocity - ref.velocity_mps).tolist()), _NAN3, _NAN3)
 
     def summary(self) -> dict:
-        out = {"controller": self.where.rsplit(".", 1)[0], "controller_output": self.output,
+        out = {"controller": self.name, "controller_output": self.output,
                "controller_update": self.times.summary()}
         if self.disagreement:
             out["motor_speeds_disagree"] = self.disagreement
@@ -245,6 +246,7 @@ class UserTrajectory:
 
     def __init__(self, instance, where: str, settings: UserCodeSettings, guard: Guard):
         self.instance = instance
+        self.name = where  # "world_traj.py WorldTraj"
         self.where = f"{where}.update"
         self.guard = guard
         self.times = CallTimes(self.where)
@@ -293,7 +295,7 @@ class UserTrajectory:
         return FlatOutput(np.array(held, float))  # at rest where it last was, until the mission lands
 
     def summary(self) -> dict:
-        out = {"trajectory": self.where.rsplit(".", 1)[0], "trajectory_update": self.times.summary(),
+        out = {"trajectory": self.name, "trajectory_update": self.times.summary(),
                "trajectory_duration_s": self.duration_s}
         if self.note:
             out["trajectory_note"] = self.note

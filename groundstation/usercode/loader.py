@@ -54,6 +54,16 @@ def looks_like_path(value: str) -> bool:
     return value.endswith(".py") or "/" in value or ".py:" in value or Path(value).is_dir()
 
 
+def builtin_or_user_file(value: str | None, choices: tuple[str, ...], kind: str) -> tuple[str | None, str | None]:
+    """(built-in choice, user spec) of an option that takes either: a --controller report|full|PATH or a
+    --trajectory hover|...|PATH. Neither a choice nor a path is one UserError line."""
+    if value is None or value in choices:
+        return value, None
+    if looks_like_path(value):
+        return None, value
+    raise UserError(f"argument --{kind}: {value}: one of {', '.join(choices)} or a user {kind} file PATH[:Class]")
+
+
 def split_spec(spec: str, kind: str) -> tuple[Path, str]:
     """(file, object name) of `PATH[:Name]`; PATH may be a directory holding the course's file."""
     default_file, default_name = DEFAULTS[kind]
