@@ -42,7 +42,7 @@ from link.messages import CommandKind, ThrustMoment, VehicleCommand
 from link.transports import open_transport
 from link.transports.base import free_loopback_port
 from model.radio import load_radio_profile
-from model.vehicle import load_mocap_room, load_vehicle
+from model.vehicle import FIRMWARE_VEHICLES, load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
 
 PHYSICS_RATE_HZ = 1000.0
@@ -57,7 +57,8 @@ TRANSPORT_PARTS = ("send", "poll", "wait")
 
 
 def make_config(radio: str, vehicles: int, seed: int, **changes) -> EmulatorConfig:
-    return EmulatorConfig(vehicle=load_vehicle("crazyflie"), mocap_room=load_mocap_room("vicon"),
+    vehicle = load_vehicle(FIRMWARE_VEHICLES[changes.get("firmware", "ideal")])  # the firmware's vehicle
+    return EmulatorConfig(vehicle=vehicle, mocap_room=load_mocap_room("vicon"),
                           radio=load_radio_profile(radio), world=None, vehicles=vehicles, seed=seed,
                           physics_rate_hz=PHYSICS_RATE_HZ, airborne=True,
                           start_positions_enu_m=[(0.5 * i, 0.0, HOVER_HEIGHT_M) for i in range(vehicles)],
@@ -124,15 +125,17 @@ def cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed: int, profile: bool) -> dict:
+def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed: int, profile: bool,
+              firmware: str = "ideal") -> dict:
     """The emulator here (listening), the responder as a child process; wall time from tick 0."""
     endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
     config = make_config(radio, 1, seed, lookahead=lookahead, profile=profile, duration_s=seconds,
-                         zenoh_options={"listen": [endpoint]})
+                         zenoh_options={"listen": [endpoint]}, firmware=firmware)
     emulator = Emulator(config)
     with emulator:
         child = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--responder", endpoint,
-                                  repr(period_s), repr(seconds)], stdout=subprocess.PIPE, text=True)
+                                  repr(period_s), repr(seconds), FIRMWARE_VEHICLES[firmware]],
+                                 stdout=subprocess.PIPE, text=True)
         ready = child.stdout.readline()  # its transports are matched with ours: it joins right away
         if ready.strip() != "ready":
             child.kill()
@@ -206,14 +209,15 @@ def report_tick_split(run: dict) -> None:
 
 # --- the responder child ------------------------------------------------------------------------------
 
-def responder(endpoint: str, period_s: float, seconds: float) -> None:
+def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str = "crazyflie") -> None:
     """Join vehicle 1's lockstep; per tick: wait for the announced frames (blocking on the key still
-    short), send ARM (first tick) and a hover ThrustMoment, ack with wake-up = tick + period. Its acks
+    short), send ARM (first tick) and a hover ThrustMoment (the weight of the emulated vehicle, so it
+    hovers rather than falls), ack with wake-up = tick + period. Its acks
     carry the period as a standing order (ClockAck.period_ns), as the ground station's do, so the
     emulator may publish a tick before the last one's ack when its lookahead covers a whole tick."""
     opts = {"connect": [endpoint], "listen": []}
     keys = VehicleKeys(PREFIX, 1)
-    vehicle = load_vehicle("crazyflie")
+    vehicle = load_vehicle(vehicle_name)
     codec = Codec(GROUND_STATION_SYSTEM_ID, limits=ActuatorLimits.from_vehicle(vehicle))
     sources = [open_transport("zenoh", rx=keys.downlink, **opts), open_transport("zenoh", rx=keys.mocap, **opts),
                open_transport("zenoh", rx=keys.truth, **opts)]
@@ -275,7 +279,7 @@ def responder(endpoint: str, period_s: float, seconds: float) -> None:
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--responder":
-        responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
+        responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:6])
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0,

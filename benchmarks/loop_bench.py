@@ -2,13 +2,14 @@
 
 Prints, from one run:
 1. Lockstep real-time factor (simulated / wall seconds) of a 20 s circle flight and of a full lab-maze
-   flight over zenoh, in each command mode (targets: >= 5x in moments mode at 500 Hz, >= 20x in attitude
-   mode at 100 Hz).
-   Next to each mode, in the same run: the floor of the layout, the lockstep real-time factor of the
-   same emulator (in this process) against a ground station that does no work at all (emulator_bench's
-   responder: it acks each tick and sends one fixed command), at the mode's rate, median of
-   FLOOR_RUNS runs; and the per-tick wall-time budget the target allows. A ground station's own work
-   (estimator, controller, logs) can only add to the floor.
+   flight over zenoh, in each command mode at its default rate, flown by a git baseline (--baseline REV,
+   extracted and run from PYTHONPATH) and by this tree in the same run, each as a ratio to the floor (issue
+   19's target: >= 80 %). The floor of the layout is the lockstep real-time factor of the same emulator
+   (in this process) against a ground station that does no work at all (emulator_bench's responder: it
+   acks each tick and sends one fixed command), at the mode's rate, median of FLOOR_RUNS runs, with the
+   ideal and the crazyflie firmware (`cfstack fly` flies the latter, so the ratio is to that floor).
+   Then each flight's ground-station work per tick by part (waiting, codec, estimator, controller,
+   mission, logging; flight_parts.py), baseline -> new.
 2. Realtime: the ground station at 500 Hz with the emulator at 1 kHz beside it for a hover flight: tick
    work time p50/p99, deadline-miss rate, achieved rates of both.
 3. End-to-end latency in that realtime flight: from the sample time of the newest IMU sample a command
@@ -16,7 +17,7 @@ Prints, from one run:
    frame's delivery by the radio, from the emulator's ledger, then the next 500 Hz firmware tick), all on
    the vehicle's clock, p50/p99 - next to a bare UDP round trip of the same size measured in the same run.
 
-Usage: python benchmarks/loop_bench.py [--quick]
+Usage: python benchmarks/loop_bench.py [--quick] [--baseline REV]
 """
 
 from __future__ import annotations
@@ -51,54 +52,112 @@ MAZE = "test_lab_1"
 FLOOR_RUNS = 3
 FLOOR_SECONDS = 10.0  # simulated seconds per floor run
 TARGET_RTF = {"moments": 5.0, "attitude": 20.0}  # issue 4's lockstep targets, each at its mode's default rate
+FLOOR_SHARE_TARGET = 0.8  # issue 19: each flight at >= 80 % of the floor's real-time factor
+FLOOR_FIRMWARES = ("ideal", "crazyflie")  # the floor with each onboard side (cfstack fly flies crazyflie)
+# The baseline of section 1: the last commit before issue 19's work (--baseline REV to change it)
+BASELINE_REV = "0f6b840"
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+PART_NAMES = ("waiting", "codec", "estimator", "controller", "mission", "logging")
 FIRMWARE_RATE_HZ = 500.0  # simulator/params/firmware.toml commander rate: when a delivered setpoint acts
 
 
-def cfstack(*args: str, timeout: float = 900) -> dict:
+def cfstack(*args: str, timeout: float = 900, env: dict | None = None) -> dict:
     run = subprocess.run([sys.executable, "-m", "cfstack", *args, "--json"], capture_output=True, text=True,
-                         timeout=timeout, stdin=subprocess.DEVNULL)
+                         timeout=timeout, stdin=subprocess.DEVNULL, env=env)
     if not run.stdout.strip():
         raise SystemExit(f"cfstack {' '.join(args)} failed: {run.stderr.strip()[-300:]}")
     return json.loads(run.stdout)
 
 
-def lockstep_table(tmp: Path, quick: bool) -> None:
-    print("\n1. Lockstep real-time factor over zenoh (crazyradio profile)")
-    print("   RTF = simulated s / wall s of the flight loop (first tick to last); whole = the same over the")
-    print("   whole `cfstack fly` session, which also waits for the emulator child to boot")
-    print(f"{'flight':28} {'mode':9} {'sim (s)':>8} {'loop (s)':>8} {'RTF':>6} {'whole':>6} {'us/tick':>8} "
-          f"{'target':>7} {'result':>13}")
+def baseline_tree(rev: str, tmp: Path) -> Path:
+    """The repository at git revision `rev`, extracted (git archive) into tmp/baseline."""
+    tree = tmp / "baseline"
+    tree.mkdir()
+    archive = subprocess.run(["git", "archive", rev], cwd=REPO, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    return tree
+
+
+def fly_timed(args: list[str], log: Path, tree: Path | None) -> tuple[dict, dict]:
+    """One plain `cfstack fly` (its real-time factor) and one with the parts timed (flight_parts.py),
+    from the working tree or, with `tree`, from that extracted revision (PYTHONPATH, emulator child too)."""
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
+    plain = cfstack(*args, "--log", str(log / "plain"), env=env)
+    out = log / "parts.json"
+    run = subprocess.run([sys.executable, str(HERE / "flight_parts.py"), str(out), *args, "--log", str(log / "parts")],
+                         env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=900)
+    if run.returncode != 0:
+        raise SystemExit(f"flight_parts.py {' '.join(args)} failed: {run.stderr.strip()[-300:]}")
+    return plain, json.loads(out.read_text())
+
+
+def floors() -> dict[tuple[str, str], float]:
+    """The layout's floor per (mode, firmware): the emulator against a ground station that does no work."""
+    print(f"   floor: the emulator against a zero-work ground station (emulator_bench responder), "
+          f"median of {FLOOR_RUNS} runs of {FLOOR_SECONDS:g} s simulated; load average {os.getloadavg()[0]:.1f}")
+    out = {}
+    for firmware in FLOOR_FIRMWARES:
+        for mode in TARGET_RTF:
+            rate_hz = DEFAULT_RATE_HZ[mode]
+            period_s = 1.0 / rate_hz
+            runs = [emulator_bench.fly_zenoh("crazyradio", FLOOR_SECONDS, period_s, True, 0, profile=False,
+                                             firmware=firmware)["rtf"] for _ in range(FLOOR_RUNS)]
+            out[mode, firmware] = statistics.median(runs)
+            print(f"   {mode:9} at {rate_hz:3.0f} Hz, firmware {firmware:9}: floor {out[mode, firmware]:5.1f}x "
+                  f"({period_s / out[mode, firmware] * 1e6:4.0f} us/tick; runs {', '.join(f'{x:.1f}x' for x in runs)})")
+    return out
+
+
+def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
+    print("\n1. Lockstep real-time factor over zenoh (crazyradio profile, firmware crazyflie), against the floor")
+    print(f"   baseline = git {rev} (extracted, run from PYTHONPATH; its emulator child too), new = this tree;")
+    print("   RTF = simulated s / wall s of the flight loop (first tick to last); /floor = RTF over the floor's RTF")
+    print("   (same mode, same firmware), target >= "
+          f"{FLOOR_SHARE_TARGET:.0%} (issue 19); parts: us of ground-station work per tick (flight_parts.py)")
+    tree = baseline_tree(rev, tmp)
     flights = [("20 s circle", ["fly", "--trajectory", "circle"])]
     if SHARED_WORLDS.is_dir() and not quick:
         flights.append((f"maze {MAZE}", ["fly", str(SHARED_WORLDS / f"{MAZE}.json")]))
+    elif not quick:
+        print(f"   (maze flights skipped: {SHARED_WORLDS} is absent)")
+    results = {}
     for name, args in flights:
-        for mode, target in TARGET_RTF.items():
-            s = cfstack(*args, "--mode", mode, "--log", str(tmp / f"{name.replace(' ', '_')}_{mode}"))
-            timing = s["timing"]
-            rtf = timing["real_time_factor"]
-            whole = s["sim_time_s"] / s["wall_time_s"]
-            us_per_tick = timing["loop_wall_s"] / timing["ticks"] * 1e6
-            print(f"{name:28} {mode:9} {s['sim_time_s']:8.2f} {timing['loop_wall_s']:8.2f} {rtf:6.1f} "
-                  f"{whole:6.1f} {us_per_tick:8.0f} {target:7.0f} {s['result']:>13} "
-                  f"{'PASS' if rtf >= target else 'MISS'}")
-    print_floor()
+        for mode in TARGET_RTF:
+            for label, source in (("baseline", tree), ("new", None)):
+                log = tmp / f"{name.replace(' ', '_')}_{mode}_{label}"
+                results[name, mode, label] = fly_timed([*args, "--mode", mode], log, source)
+                print(f"   flew {name}, {mode}, {label}", file=sys.stderr, flush=True)  # progress
+    floor = floors()
+    print(f"\n{'flight':18} {'mode':9} {'RTF base':>8} {'RTF new':>8} {'new/base':>8} {'floor':>6} "
+          f"{'base/floor':>10} {'new/floor':>9} {'result':>13} {'target':>7}")
+    for name, _ in flights:
+        for mode in TARGET_RTF:
+            (base, _), (new, _) = results[name, mode, "baseline"], results[name, mode, "new"]
+            rb, rn = base["timing"]["real_time_factor"], new["timing"]["real_time_factor"]
+            f = floor[mode, "crazyflie"]
+            verdict = "PASS" if rn / f >= FLOOR_SHARE_TARGET else "MISS"
+            print(f"{name:18} {mode:9} {rb:8.1f} {rn:8.1f} {rn / rb:8.2f} {f:6.1f} {rb / f:10.0%} {rn / f:9.0%} "
+                  f"{new['result']:>13} {verdict:>7}")
+    print("\n   per-component us per tick (exclusive; 'other' = loop wall - parts), baseline -> new")
+    print(f"{'flight':18} {'mode':9} " + " ".join(f"{p:>15}" for p in (*PART_NAMES, "other", "loop")))
+    for name, _ in flights:
+        for mode in TARGET_RTF:
+            cells = []
+            per_tick = [_per_tick(results[name, mode, label][1]) for label in ("baseline", "new")]
+            for part in (*PART_NAMES, "other", "loop"):
+                cells.append(f"{per_tick[0][part]:6.0f} -> {per_tick[1][part]:5.0f}")
+            print(f"{name:18} {mode:9} " + " ".join(f"{c:>15}" for c in cells))
 
 
-def print_floor() -> None:
-    """The layout's floor per mode: the emulator against a ground station that does no work."""
-    print(f"   floor: the emulator against a zero-work ground station (emulator_bench responder), "
-          f"median of {FLOOR_RUNS} runs of {FLOOR_SECONDS:g} s simulated; load average {os.getloadavg()[0]:.1f}")
-    for mode, target in TARGET_RTF.items():
-        rate_hz = DEFAULT_RATE_HZ[mode]
-        period_s = 1.0 / rate_hz
-        runs = [emulator_bench.fly_zenoh("crazyradio", FLOOR_SECONDS, period_s, True, 0, profile=False)
-                for _ in range(FLOOR_RUNS)]
-        rtfs = [r["rtf"] for r in runs]
-        floor_us = period_s / statistics.median(rtfs) * 1e6
-        budget_us = period_s / target * 1e6
-        print(f"   {mode:9} at {rate_hz:3.0f} Hz: floor {statistics.median(rtfs):5.1f}x ({floor_us:4.0f} us/tick; "
-              f"runs {', '.join(f'{x:.1f}x' for x in rtfs)}); the {target:.0f}x target allows {budget_us:4.0f} "
-              f"us/tick: {budget_us - floor_us:+4.0f} us/tick beyond the floor for the ground station's work")
+def _per_tick(parts: dict) -> dict[str, float]:
+    ticks = parts["ticks"]
+    out = {p: parts["parts_s"].get(p, 0.0) / ticks * 1e6 for p in PART_NAMES}
+    out["loop"] = parts["loop_wall_s"] / ticks * 1e6
+    out["other"] = out["loop"] - sum(out[p] for p in PART_NAMES)
+    return out
 
 
 def realtime_flight(tmp: Path) -> tuple[dict, Path, dict, str]:
@@ -164,10 +223,12 @@ def bare_udp_rtt_ms(size: int, count: int = 2000) -> np.ndarray:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="skip the maze flights")
+    p.add_argument("--baseline", default=BASELINE_REV, metavar="REV",
+                   help=f"git revision of section 1's baseline (default {BASELINE_REV})")
     args = p.parse_args()
     with TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
-        lockstep_table(tmp, args.quick)
+        lockstep_table(tmp, args.quick, args.baseline)
         summary, log, ledger, emulator_line = realtime_flight(tmp)
         t = summary.get("timing", {})
         print("\n2. Realtime: ground station 500 Hz, emulator 1 kHz, hover flight")

@@ -556,14 +556,14 @@ class ErrorStateKF:
             node.P = P
         return P
 
-    def _predict(self, P: np.ndarray, transition: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """filterpy predict of P over one stored (F, Q) (x is the zero error state)."""
-        kf = self._kf
-        kf.x = self._zero_dx
-        kf.P = P
-        kf.F, kf.Q = transition  # attributes, not arguments: see __init__
-        kf.predict()
-        return kf.P
+    @staticmethod
+    def _predict(P: np.ndarray, transition: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """filterpy predict's covariance step over one stored (F, Q): P' = F P F' + Q, by the same numpy
+        calls, so the same bits (its fading factor alpha^2 is 1 here: an exact multiply). The rest of
+        KalmanFilter.predict - x = F x on the zero error state, copies of the priors - is a third of its
+        time and unused (tests/estimator/test_eskf_kernels.py checks the bits against filterpy)."""
+        F, Q = transition
+        return np.dot(np.dot(F, P), F.T) + Q
 
     def _signal_at(self, j: int) -> tuple[tuple, tuple]:
         """IMU signal at a mocap node: linear between the node before and the next IMU sample."""

@@ -144,14 +144,24 @@ class FlightLoop:
                 self.health.mocap_times.append(now_s)
                 if self.extpose and not self.commands_stopped:
                     self.link.send(ExternalPose(pose.time_s, pose.position_enu_m, pose.attitude_wxyz))
-        for rx in inbox.truth:
+        # The filter changes only here: one estimate serves the view, the controller and the log row.
+        self.estimate = self.estimator.estimate() if self.estimator.initialised else None
+
+    def absorb_truth(self) -> None:
+        """The tick's simulator truth (for the log and the grading only), taken after the tick's commands
+        are sent: nothing before the send reads it, so its decoding overlaps the emulator's next step."""
+        for rx in self.link.take_truth():
             if isinstance(rx.message, TruthState):
                 self.truth = rx.message
                 self.truth_history.append(rx.message)
             elif isinstance(rx.message, CrashReport) and self.record.crash is None:
                 self.record.crash = rx.message
-        # The filter changes only here: one estimate serves the view, the controller and the log row.
-        self.estimate = self.estimator.estimate() if self.estimator.initialised else None
+
+    def after_release(self, now_s: float, step, out) -> None:
+        """The tick's bookkeeping once its commands are sent: truth, the log row, the tlog records."""
+        self.absorb_truth()
+        self.write_row(now_s, step, out)
+        self.link.flush_logs()
 
     def _status(self, msg: BatteryStatus) -> None:
         previous = self.health.uplink_received
@@ -263,7 +273,7 @@ class FlightLoop:
             now = self.clock.wait()
             self.absorb(now)
             self.clock.release(now + self.period_s)
-            self.write_row(now, done, None)
+            self.after_release(now, done, None)
             self.clock.done()
             if now >= give_up or (now >= observe_until and self._status_covers_all_sent()):
                 return
@@ -302,7 +312,7 @@ class FlightLoop:
         # Everything the vehicle needs from this tick is sent: release the lockstep before the
         # bookkeeping, which changes nothing that is sent (the log is the same either way).
         self.clock.release(now + self.period_s)
-        self.write_row(now, step, out)
+        self.after_release(now, step, out)
         self.check_health(now)
         self.clock.done()
 

@@ -2,9 +2,12 @@
 
 Takes in: a connection string and zenoh options, the vehicle id and key prefix, actuator limits and
 signing, a clock for receive times, and an optional .tlog path.
-Gives out: `send(message)` on the uplink; decoded downlink, mocap and (simulation-only) truth messages
-in an inbox (`pump()`: everything that arrived; or, for the lockstep clock, `fetch()` samples and
-`deliver(counts)` exactly a tick's worth of them); sample counts per key and link statistics.
+Gives out: `send(message)` on the uplink; decoded downlink and mocap messages in an inbox (`pump()`:
+everything that arrived; or, for the lockstep clock, `fetch()` samples and `deliver(counts)` exactly a
+tick's worth of them); the same tick's (simulation-only) truth messages from `take_truth()`, decoded
+only when asked, which the flight loop does after the tick's commands are sent (truth is for logs, so its
+decoding stays off the lockstep's critical path); sample counts per key and link statistics.
+Frames of the tlog are written by `flush_logs()` (the flight loop calls it once per tick, after sending).
 Mocap comes from the ground network and truth from the simulator: neither passes the radio.
 """
 
@@ -37,7 +40,7 @@ class VehicleLink:
         opts = zenoh_options or {}
         self.keys = keys
         self.clock = clock
-        self.tlog = TlogWriter(tlog_path) if tlog_path else None
+        self.tlog = TlogWriter(tlog_path, buffered=True) if tlog_path else None
         codec = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits, signing=signing)
         self.radio = Endpoint(open_transport(connection, tx=keys.uplink, rx=keys.downlink, **opts), codec,
                               FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog,
@@ -53,6 +56,7 @@ class VehicleLink:
         self.last_sent_s: float | None = None
         self._streams = [self.radio, self.mocap, self.truth]  # raw_counts() order
         self._held: list[list[bytes]] = [[], [], []]  # samples taken from the transports, not yet delivered
+        self._truth_due: int | None = None  # truth samples (taken in all) the last deliver() accounted for
 
     def send(self, message) -> None:
         self.radio.send(message, target_system=self.keys.vehicle_id)
@@ -78,17 +82,34 @@ class VehicleLink:
                 self._held[i].extend(endpoint.transport.receive(timeout_s if i == wait_on else 0.0))
 
     def deliver(self, counts: tuple[int, int, int] | None = None) -> None:
-        """Decode held samples into the inbox (stamped now on the clock): all of them, or per stream
-        only up to `counts` samples taken in all (a lockstep tick's; later ones stay held)."""
-        boxes = (self.inbox.downlink, self.inbox.mocap, self.inbox.truth)
-        for i, endpoint in enumerate(self._streams):
-            held = self._held[i]
-            if endpoint is None or not held:
-                continue
-            take = len(held) if counts is None else max(0, counts[i] - (self._taken(i) - len(held)))
-            if take:
-                boxes[i].extend(endpoint.deliver(held[:take]))
-                del held[:take]
+        """Decode held downlink and mocap samples into the inbox (stamped now on the clock): all of them,
+        or per stream only up to `counts` samples taken in all (a lockstep tick's; later ones stay held).
+        The truth samples it accounts for wait, undecoded, for take_truth()."""
+        self._deliver(0, self.inbox.downlink, None if counts is None else counts[0])
+        self._deliver(1, self.inbox.mocap, None if counts is None else counts[1])
+        self._truth_due = None if counts is None else counts[2]
+
+    def take_truth(self) -> list:
+        """The truth messages of what the last deliver() accounted for, decoded now (same clock stamp:
+        the caller asks within the same tick)."""
+        self._deliver(2, self.inbox.truth, self._truth_due)
+        truth, self.inbox.truth = self.inbox.truth, []
+        return truth
+
+    def _deliver(self, stream: int, box: list, count: int | None) -> None:
+        """Decode stream's held samples into box: all, or up to `count` taken in all."""
+        endpoint, held = self._streams[stream], self._held[stream]
+        if endpoint is None or not held:
+            return
+        take = len(held) if count is None else max(0, count - (self._taken(stream) - len(held)))
+        if take:
+            box.extend(endpoint.deliver(held[:take]))
+            del held[:take]
+
+    def flush_logs(self) -> None:
+        """Hand the tlog records written since the last flush to the operating system (one write)."""
+        if self.tlog is not None:
+            self.tlog.flush()
 
     def pump(self, timeout_s: float = 0.0, wait_on: int = 0) -> None:
         """Move whatever has arrived into the inbox, waiting at most timeout_s on one stream."""
@@ -96,7 +117,9 @@ class VehicleLink:
         self.deliver()
 
     def take(self) -> Inbox:
-        inbox, self.inbox = self.inbox, Inbox()
+        """The downlink and mocap messages delivered so far (truth stays for take_truth)."""
+        inbox = self.inbox
+        self.inbox = Inbox(truth=inbox.truth)
         return inbox
 
     def close(self) -> None:

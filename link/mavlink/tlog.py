@@ -8,7 +8,10 @@ Gives out: a file of records `timestamp (8 bytes, big-endian unsigned, microseco
 
 Each record goes to the operating system in one os.write call as soon as it is written (no Python-level
 buffering), so a process that is killed loses at most the record being written; surviving a power loss
-would need `fsync=True` (an fsync per frame: slow).
+would need `fsync=True` (an fsync per frame: slow). With `buffered=True` records wait in memory until
+`flush()` (or close), which the owner calls at a point of its choosing - the ground station's flight loop
+once per tick, after the tick's commands are sent - so a killed process loses at most the records since
+the last flush, and the writes leave the loop's critical path.
 """
 
 from __future__ import annotations
@@ -36,10 +39,11 @@ class TlogWriter:
     """Appends time-stamped frames to a .tlog file; a context manager. `clock()` returns seconds."""
 
     def __init__(self, path: str | Path, clock: Callable[[], float] = time.time, *, fsync: bool = False,
-                 append: bool = False):
+                 append: bool = False, buffered: bool = False):
         self.path = Path(path)
         self.clock = clock
         self.fsync = fsync
+        self._buffer: list[bytes] | None = [] if buffered else None  # records not yet flushed
         self.frames_written = 0
         self.bytes_written = 0
         self._fd: int | None = None
@@ -56,13 +60,25 @@ class TlogWriter:
             raise ValueError(f"{self.path}: tlog is closed")
         stamp_s = self.clock() if time_s is None else time_s
         record = _TIMESTAMP.pack(max(0, int(round(stamp_s * 1e6)))) + bytes(frame)
-        written = os.write(self._fd, record)
-        while written < len(record):  # a regular file takes it all at once; be correct anyway
-            written += os.write(self._fd, record[written:])
-        if self.fsync:
-            os.fsync(self._fd)
         self.frames_written += 1
         self.bytes_written += len(record)
+        if self._buffer is not None:
+            self._buffer.append(record)
+        else:
+            self._write(record)
+
+    def flush(self) -> None:
+        """Write the buffered records (buffered=True) in one call; nothing to do otherwise."""
+        if self._buffer and self._fd is not None:
+            records, self._buffer = b"".join(self._buffer), []
+            self._write(records)
+
+    def _write(self, data: bytes) -> None:
+        written = os.write(self._fd, data)
+        while written < len(data):  # a regular file takes it all at once; be correct anyway
+            written += os.write(self._fd, data[written:])
+        if self.fsync:
+            os.fsync(self._fd)
 
     @property
     def closed(self) -> bool:
@@ -70,6 +86,7 @@ class TlogWriter:
 
     def close(self) -> None:
         if self._fd is not None:
+            self.flush()
             fd, self._fd = self._fd, None
             os.close(fd)
 

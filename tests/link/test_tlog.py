@@ -129,3 +129,25 @@ def test_killed_writer_leaves_a_log_readable_to_the_last_whole_frame(tmp_path):
     assert size - len(ours) * record_len < record_len  # at most the record being written is cut
     theirs = pymavlink_read(path)
     assert len(theirs) == len(ours) and theirs[-1][1].xacc == pytest.approx(len(ours) - 1, rel=1e-6)
+
+
+def test_buffered_writer_holds_records_until_flush_and_close(tmp_path):
+    """buffered=True (the ground station's flight loop: one write per tick, after the tick's commands):
+    nothing reaches the file before flush(); flush() writes every record in order, byte for byte as the
+    unbuffered writer would; close() flushes the rest."""
+    frames = [Codec(1).encode(TimeSync(i, i + 1)) for i in range(6)]
+    plain_path, buffered_path = tmp_path / "plain.tlog", tmp_path / "buffered.tlog"
+    with TlogWriter(plain_path) as plain:
+        for i, frame in enumerate(frames):
+            plain.write(frame, time_s=10.0 + i)
+    buffered = TlogWriter(buffered_path, buffered=True)
+    for i, frame in enumerate(frames[:4]):
+        buffered.write(frame, time_s=10.0 + i)
+    assert buffered_path.stat().st_size == 0
+    assert buffered.frames_written == 4  # counted when written, as the unbuffered writer counts
+    buffered.flush()
+    assert len(read_tlog(buffered_path)) == 4
+    for i, frame in enumerate(frames[4:], start=4):
+        buffered.write(frame, time_s=10.0 + i)
+    buffered.close()
+    assert buffered_path.read_bytes() == plain_path.read_bytes()
