@@ -346,7 +346,7 @@ class EmulatorChild:
         cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
                "--radio", args.radio, "--seed", str(args.seed), "--id", args.prefix,
                "--vehicle-model", args.vehicle_model, "--firmware", args.firmware,
-               "--vehicle-draw", args.vehicle_draw, "--quiet"]
+               "--vehicle-draw", args.vehicle_draw, "--crtp-port", "off", "--quiet"]  # no cflib clients here
         if world_path:
             cmd += ["--world", world_path]
         if start is not None:  # the pre-flight-checked start (it may have been moved inside the bounds)

@@ -2,9 +2,11 @@
 
 Takes in: command-line options (world, vehicles, radio profile, clock, seed, zenoh endpoints, key prefix,
 injected faults --cut-radio / --cut-mocap AT[:DURATION] in simulated seconds; see `cfstack emulator --help`).
-Gives out: a running emulator (see simulator.emulator); on Ctrl-C or SIGTERM (or after --duration
-simulated seconds) a clean stop and a one-line summary on stderr; with --radio-ledger, a JSON file of
-the radio statistics (frames cut, the uplink parser's signature failures) and every frame's fate.
+Gives out: a running emulator (see simulator.emulator), and with the realtime clock and the faithful
+firmware, by default, CRTP for unmodified cflib clients on udp 127.0.0.1:19850+N-1 (--crtp-port); on
+Ctrl-C or SIGTERM (or after --duration simulated seconds) a clean stop and a one-line summary on stderr;
+with --radio-ledger, a JSON file of the radio statistics (frames cut, the uplink parser's signature
+failures) and every frame's fate.
 Exit code 0; bad input (files, options) is one line on stderr and exit code 2, never a traceback.
 """
 
@@ -23,6 +25,7 @@ from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
 from model.errors import OneLineParser, UserError
 from model.options import finite_float, positive_float, seed, whole_number
+from simulator.crtp_service import CRTP_HOST, DEFAULT_CRTP_PORT
 
 if TYPE_CHECKING:
     from simulator.emulator_config import EmulatorConfig
@@ -89,6 +92,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cut-mocap", type=_outage, action="append", default=[], metavar="AT[:DURATION]",
                    help="fault injection: from simulated time AT (s) for DURATION s (default: to the end), "
                         "publish no mocap frames (repeatable)")
+    p.add_argument("--crtp-port", type=_crtp_port, default=None, metavar="BASE|off",
+                   help=f"serve unmodified cflib clients (CRTP over UDP) with vehicle N on {CRTP_HOST}:BASE+N-1, "
+                        f"e.g. cflib's udp://{CRTP_HOST}:{DEFAULT_CRTP_PORT} (default: {DEFAULT_CRTP_PORT}, "
+                        "CrazySim's convention, with --clock realtime and --firmware crazyflie, skipped with a "
+                        "warning when the port is taken; off: none)")
+    p.add_argument("--no-position-deck", dest="position_deck", action="store_false",
+                   help="with CRTP: no simulated positioning deck (the onboard estimator then has a position only "
+                        "from extpos/extpose)")
     p.add_argument("--quiet", action="store_true", help="log warnings only")
     add_zenoh_arguments(p, mode_flag="--zenoh-mode")
     add_signing_arguments(p)
@@ -127,7 +138,25 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         mocap_cuts=tuple(Outage(at, duration) for at, duration in args.cut_mocap),
         # the uplink gate keeps a signing state of its own (simulator.emulator.GroundFrameGate)
         signing_factory=lambda: signing_from_args(args),
+        **_crtp_settings(args),
     )
+
+
+def _crtp_port(text: str) -> int | str:
+    if text == "off":
+        return text
+    return whole_number(1, "a UDP port", 65535)(text)
+
+
+def _crtp_settings(args: argparse.Namespace) -> dict:
+    """CRTP on by default where it can run (realtime, faithful firmware), on the CrazySim port."""
+    if args.crtp_port == "off":
+        return {"crtp_base_port": None}
+    if args.crtp_port is None:
+        default_on = args.clock == "realtime" and args.firmware == "crazyflie"
+        return {"crtp_base_port": DEFAULT_CRTP_PORT if default_on else None, "crtp_required": False,
+                "crtp_host": CRTP_HOST, "position_deck": args.position_deck}
+    return {"crtp_base_port": args.crtp_port, "crtp_host": CRTP_HOST, "position_deck": args.position_deck}
 
 
 def _zenoh_options(args: argparse.Namespace) -> dict:

@@ -123,6 +123,8 @@ class Emulator:
         while not self.stopped and not self.duration_reached(self.steps):
             for node in self.nodes:
                 node.receive_uplink(self.t_s)
+                if node.crtp is not None:
+                    node.serve_crtp(self.t_s)
             self.step_all()
             for node in self.nodes:
                 node.outbox.send(node.outbox.take_due(self.steps))
@@ -166,6 +168,8 @@ class Emulator:
                 line += f", radio cut {node.cut['uplink']} up / {node.cut['downlink']} down"
             if self.config.mocap_cuts:
                 line += f", mocap cut {node.mocap_cut}"
+            if node.crtp is not None:
+                line += f", {node.crtp.describe()}"
             parts.append(f"{line}, {crash}")
         return "; ".join(parts)
 

@@ -47,6 +47,14 @@ class EmulatorConfig:
     profile: bool = False  # accumulate per-part wall time in Emulator.timing_s (benchmarks)
     radio_cuts: tuple[Outage, ...] = ()  # every radio frame offered inside these windows is dropped
     mocap_cuts: tuple[Outage, ...] = ()  # no mocap frame is published inside these windows
+    # CRTP for cflib clients (simulator.crtp_service): vehicle N answers on udp 127.0.0.1:crtp_base_port+N-1
+    # (CrazySim's convention: the first at 19850), realtime clock and crazyflie firmware only; None: off
+    crtp_base_port: int | None = None
+    crtp_host: str = "127.0.0.1"
+    crtp_required: bool = True  # False (the CLI's default port): a taken port is a warning, not an error
+    # the onboard positioning deck: with CRTP on, each mocap frame also reaches the vehicle's estimator at
+    # its release time, as a Lighthouse or Loco deck's fix would, unless a ground station streams extpose
+    position_deck: bool = True
     # A fresh Signing with the key of `signing` (one per vehicle, for GroundFrameGate's own replay state).
     # None with signing on: the gate can only require signed frames from the ground station's system id.
     signing_factory: Callable[[], object | None] | None = None
@@ -65,6 +73,13 @@ class EmulatorConfig:
             raise UserError(f"physics rate: {rate!r} is not a positive number of Hz")
         if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
             raise UserError(f"duration: {self.duration_s!r} is not a positive number of seconds")
+        if self.crtp_base_port is not None:
+            if not 1 <= self.crtp_base_port <= 65535 - self.vehicles + 1:
+                raise UserError(f"crtp port: {self.crtp_base_port!r} leaves no UDP port for each of "
+                                f"{self.vehicles} vehicle(s) (1..65535)")
+            if self.clock != "realtime" or self.firmware != "crazyflie":
+                raise UserError("crtp: cflib clients are served over UDP with --clock realtime and --firmware "
+                                "crazyflie (turn it off with --crtp-port off)")
         starts = self.start_positions_enu_m
         if starts is not None and len(starts) != self.vehicles:
             raise UserError(f"{len(starts)} start positions given for {self.vehicles} vehicle(s)")

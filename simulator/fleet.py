@@ -4,7 +4,10 @@ Takes in: the EmulatorConfig, a vehicle id and its seed; uplink samples from the
 in-process); the step count of each physics step.
 Gives out: per step, the vehicle's frames in its Outbox (downlink through the downlink radio, mocap and
 truth on the ground network), RADIO_STATUS once a second, a crash reported once; per-part timing when
-profiled. `default_starts` places a fleet: vehicle 1 at the world's start, the others 0.5 m apart.
+profiled. With CRTP on (config.crtp_base_port), a UDP endpoint per vehicle for cflib clients
+(simulator.crtp_service, served by `serve_crtp` each realtime step) and the positioning deck: each mocap
+frame into the onboard estimator at its release time while no ground station streams extpose.
+`default_starts` places a fleet: vehicle 1 at the world's start, the others 0.5 m apart.
 
 Foreign uplink frames. Anyone may publish on a vehicle's uplink key. Every sample is offered to the
 uplink radio (so the vehicle's parser rejects what is unsigned, forged or replayed, and counts it), but
@@ -17,7 +20,9 @@ that claims the ground station's system id cannot be told from its own.
 
 from __future__ import annotations
 
+import heapq
 import logging
+import math
 from collections import defaultdict, deque
 
 import numpy as np
@@ -25,9 +30,11 @@ import numpy as np
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
 from link.mavlink.codec import IFLAG_SIGNED, MAGIC_V2, MIN_FRAME_LEN, ActuatorLimits, Codec, FrameParser
 from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
-from link.messages import RadioStatus
+from link.messages import ExternalPose, RadioStatus
 from link.transports import Transport, open_transport
+from model.errors import UserError
 from model.world import World
+from simulator.crtp_service import CrtpService
 from simulator.emulator_config import EmulatorConfig
 from simulator.faults import covered
 from simulator.profiling import time_parts
@@ -39,6 +46,7 @@ log = logging.getLogger("cfstack.emulator")
 
 RADIO_STATUS_PERIOD_S = 1.0  # RADIO_STATUS once a second, as SiK radios report it
 STEP_TOTAL = "step"  # profiled: a whole VehicleNode.step, the parts included
+DECK_YIELD_S = 1.0  # the positioning deck stands aside while a ground station's extpose is this fresh
 
 
 class GroundFrameGate:
@@ -122,6 +130,12 @@ class VehicleNode:
         self.timing_s: dict[str, float] = defaultdict(float)
         self.link: Transport | None = None  # tx downlink, rx uplink
         self.clock: Transport | None = None  # tx clock, rx clock_ack
+        self.crtp: CrtpService | None = None  # cflib clients (config.crtp_base_port)
+        self.crtp_link: Transport | None = None
+        self._deck_fixes: list[tuple[float, int, ExternalPose]] = []  # positioning deck fixes by release time
+        self._deck_seq = 0
+        self._ground_extpose_s = -math.inf  # when the ground station's last extpose arrived
+        self.position_deck = config.position_deck and config.crtp_base_port is not None
         if config.profile:
             self._profile()
 
@@ -134,12 +148,39 @@ class VehicleNode:
             truth = open_transport(config.connection, tx=self.keys.truth, **opts)
             self.outbox.senders = [self.link, mocap, truth]
             self.clock = open_transport(config.connection, tx=self.keys.clock, rx=self.keys.clock_ack, **opts)
+            if config.crtp_base_port is not None:
+                self._open_crtp(config)
         except BaseException:
             self.close()
             raise
 
+    def _open_crtp(self, config: EmulatorConfig) -> None:
+        port = config.crtp_base_port + self.vehicle_id - 1
+        try:
+            self.crtp_link = open_transport(f"udpin:{config.crtp_host}:{port}")
+        except UserError as err:
+            if not config.crtp_required:
+                log.warning("crtp: udp %s:%d is taken (another emulator?): vehicle %d serves no cflib client "
+                            "(choose a base with --crtp-port)", config.crtp_host, port, self.vehicle_id)
+                self.position_deck = False
+                return
+            raise UserError(f"crtp: vehicle {self.vehicle_id} cannot serve cflib on udp {config.crtp_host}:{port} "
+                            f"({err}); choose another base with --crtp-port or turn it off with --crtp-port off") \
+                from None
+        self.crtp = CrtpService(self.sim)
+
+    def serve_crtp(self, t_s: float) -> None:
+        """Answer the cflib client's datagrams and send the log blocks due (realtime)."""
+        link = self.crtp_link
+        replies = []
+        for datagram in link.receive(0.0):
+            replies.extend(self.crtp.handle(datagram, t_s))
+        replies.extend(self.crtp.due(t_s))
+        for reply in replies:
+            link.send(reply)
+
     def close(self) -> None:
-        for transport in (*self.outbox.senders, self.link, self.clock):
+        for transport in (*self.outbox.senders, self.link, self.clock, self.crtp_link):
             if transport is not None:
                 transport.close()
 
@@ -222,13 +263,31 @@ class VehicleNode:
             elif channel == "mocap":
                 if not self._mocap_cut(release_s):
                     outbox.append((step_no, MOCAP, self.ground_codec.encode(message)))
+                if self.position_deck:
+                    self._queue_deck_fix(message, release_s)
             else:
                 outbox.append((step_no, TRUTH, self.ground_codec.encode(message)))
         self._finish_step(t, step_no)
 
+    def _queue_deck_fix(self, pose, release_s: float) -> None:
+        fix = ExternalPose(pose.time_s, pose.position_enu_m, pose.attitude_wxyz)
+        heapq.heappush(self._deck_fixes, (release_s, self._deck_seq, fix))
+        self._deck_seq += 1
+
+    def _feed_deck(self, t: float) -> None:
+        """The positioning deck's fixes released by t into the onboard estimator, unless the ground station
+        streamed extpose within the last DECK_YIELD_S (then its poses are the vehicle's position source)."""
+        fixes = self._deck_fixes
+        while fixes and fixes[0][0] <= t:
+            _, _, fix = heapq.heappop(fixes)
+            if t - self._ground_extpose_s > DECK_YIELD_S:
+                self.sim.firmware.take_position_fix(fix, t)
+
     def _finish_step(self, t: float, step_no: int) -> None:
         """The end of a step at time t: RADIO_STATUS when due, the downlink frames the radio delivers
         by t into the outbox, a crash reported once."""
+        if self._deck_fixes:
+            self._feed_deck(t)
         if t >= self.next_radio_status_s:
             self._push_radio_status(t)
         outbox = self.outbox.queue
@@ -244,6 +303,8 @@ class VehicleNode:
         feed, handle = self.parser.feed, self.sim.handle_uplink
         for frame in frames:
             for decoded in feed(frame, True):  # each uplink sample is whole frames (a datagram)
+                if isinstance(decoded.message, ExternalPose):
+                    self._ground_extpose_s = t
                 handle(decoded.message, t)
 
     def _push_radio_status(self, t: float) -> None:

@@ -36,13 +36,24 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from link.messages import BatteryStatus, ExternalPose, ImuSample, PositionTarget, VehicleMode
+from link.crtp import setpoints as crtp
+from link.messages import (
+    AttitudeTarget,
+    BatteryStatus,
+    ExternalPose,
+    ImuSample,
+    PositionTarget,
+    ThrustMoment,
+    VehicleMode,
+)
 from model.config import Params, resolve
 from model.frames import attitude_error, euler_zyx_of
 from model.vehicle import GRAVITY_MPS2, Vehicle
 from simulator.crazyflie.attitude_controller import AttitudeController
 from simulator.crazyflie.battery import Battery
+from simulator.crazyflie.commander_rpyt import RpytDecoder
 from simulator.crazyflie.controller_pid import MODE_ABS, MODE_DISABLE, MODE_VELOCITY, ControllerPid, Setpoint
+from simulator.crazyflie.high_level_commander import HighLevelCommander
 from simulator.crazyflie.history import TimeHistory
 from simulator.crazyflie.motors import ThrustCurve
 from simulator.crazyflie.position_controller import PositionController
@@ -194,6 +205,14 @@ class CrazyflieFirmware(Firmware):
         self._last_ext_arrival_s = -math.inf
         self._imu_time_s = 0.0
         self.external_poses = 0  # fused
+        # CRTP (link.crtp.setpoints records, from simulator.crtp_service): the legacy RPYT decoder with its
+        # thrust lock, the high-level commander, and the PID setpoint an RPYT packet set (None: a MAVLink one)
+        self.rpyt = RpytDecoder()
+        self.high_level = HighLevelCommander()
+        self.high_level_enabled = True  # param commander.enHighLevel
+        self.low_level_active = False  # a low-level setpoint came since the last notify-stop (its priority)
+        self._sp_pid: Setpoint | None = None
+        self.crtp_ignored = 0  # CRTP commands the emulated firmware counted and ignored
 
     # --- sensors and estimator ---------------------------------------------------------------------
     def calibrate_gyro(self, samples_dps) -> None:
@@ -206,11 +225,131 @@ class CrazyflieFirmware(Firmware):
         if isinstance(message, PositionTarget):
             self.count_uplink(arrival_s)
             return self._take_position_target(message, arrival_s)
+        if type(message).__module__ == crtp.__name__:
+            self.count_uplink(arrival_s)
+            return self._take_crtp(message, arrival_s)
         if not super().receive(message, arrival_s):
             return False
+        if isinstance(message, (AttitudeTarget, ThrustMoment)):
+            self._sp_pid = None  # a MAVLink setpoint replaces an RPYT one
         if isinstance(message, ExternalPose):
             self._fuse_external(message, arrival_s)
         return True
+
+    # --- CRTP commands (crtp_commander_rpyt.c, crtp_commander_generic.c, crtp_commander_high_level.c) ---
+    def _take_crtp(self, record, arrival_s: float) -> bool:
+        """One decoded CRTP command. As in the Crazyflie's default build (no CONFIG_MOTORS_REQUIRE_ARMING)
+        the supervisor arms by itself when a setpoint comes; a crashed vehicle takes none."""
+        if isinstance(record, crtp.ExternalPosition):
+            return self._take_external_position(record, arrival_s)
+        if self.mode == VehicleMode.CRASHED:
+            self.rejected_commands += 1
+            return False
+        if isinstance(record, crtp.Rpyt):
+            return self._take_rpyt(record, arrival_s)
+        if isinstance(record, crtp.PositionSetpoint):
+            values = (record.x_m, record.y_m, record.z_m, record.yaw_deg)
+            target = PositionTarget(arrival_s, values[:3], (0.0, 0.0, 0.0), math.radians(record.yaw_deg))
+            if self._auto_arm(arrival_s, values) and self._take_position_target(target, arrival_s):
+                self.low_level_active = True
+                return True
+            return False
+        if isinstance(record, crtp.StopSetpoint):
+            self.low_level_active = True
+            self._stop_motors(arrival_s)
+            return True
+        if isinstance(record, crtp.NotifySetpointsStop):
+            self.low_level_active = False  # commanderRelaxPriority: the high-level commander may take over
+            return True
+        if isinstance(record, crtp.HighLevel):
+            return self._take_high_level(record, arrival_s)
+        if isinstance(record, crtp.SupervisorRequest):
+            return self._take_supervisor(record, arrival_s)
+        self.crtp_ignored += 1
+        return False
+
+    def _auto_arm(self, arrival_s: float, values) -> bool:
+        if not all(math.isfinite(v) for v in values):
+            self.rejected_commands += 1
+            return False
+        if not self.armed:
+            self.arm(arrival_s)
+        return True
+
+    def _take_rpyt(self, sp: crtp.Rpyt, arrival_s: float) -> bool:
+        values = (sp.roll_deg, sp.pitch_deg, sp.yaw_rate_dps)
+        # commander priority fell to DISABLE (no setpoint for the shutdown timeout): the lock re-arms
+        stale = arrival_s - self._sp_arrival_s > self._shutdown_timeout_s
+        if not self._auto_arm(arrival_s, values):
+            return False
+        setpoint = self.rpyt.decode(sp.roll_deg, sp.pitch_deg, sp.yaw_rate_dps, sp.thrust, priority_disabled=stale)
+        self.low_level_active = True
+        self._sp_arrival_s = arrival_s
+        self._sp_pid = setpoint
+        self._sp_thrust_n = setpoint.thrust_pwm / self._pwm_per_n  # what the watchdog's level-out keeps
+        self.mode = VehicleMode.ATTITUDE
+        return True
+
+    def _stop_motors(self, arrival_s: float) -> None:
+        self._sp_arrival_s = arrival_s
+        self._sp_pid = None
+        self.high_level.plan = None
+        self.mode = VehicleMode.IDLE  # armed, thrust 0: the tick's idle branch
+
+    def _take_external_position(self, fix: crtp.ExternalPosition, arrival_s: float) -> bool:
+        """extpos / extpose into the estimator (estimatorEnqueuePosition / Pose), stamped on arrival."""
+        position = (fix.x_m, fix.y_m, fix.z_m)
+        if not all(math.isfinite(v) for v in position):
+            self.rejected_commands += 1
+            return False
+        if fix.attitude_wxyz is None:  # position only: the attitude estimate is left alone
+            previous = self._last_ext_time_s
+            dt = 0.0 if previous is None else min(max(arrival_s - previous, 0.0), self.cf.ext_fresh_for_s)
+            self.position.fuse(position, arrival_s, dt)
+            self._last_ext_time_s = arrival_s if previous is None else max(previous, arrival_s)
+            return True
+        self._fuse_external(ExternalPose(arrival_s, position, fix.attitude_wxyz), arrival_s)
+        return True
+
+    def _take_high_level(self, request: crtp.HighLevel, arrival_s: float) -> bool:
+        if not self.high_level_enabled or not self.position.valid:
+            self.crtp_ignored += 1  # disabled (commander.enHighLevel = 0), or no position to plan from
+            return False
+        values = (request.x_m, request.y_m, request.z_m, request.yaw_rad, request.duration_s)
+        if not self._auto_arm(arrival_s, values):
+            return False
+        yaw_now = math.radians(self.estimate_rpy_deg[2])
+        yaw = None if request.use_current_yaw else request.yaw_rad
+        ok = self.high_level.request(request.kind, (request.x_m, request.y_m, request.z_m), yaw,
+                                     request.duration_s, arrival_s, tuple(self.position.p), yaw_now,
+                                     request.relative)
+        if not ok:
+            self.rejected_commands += 1
+            return False
+        if request.kind == "stop":
+            self._stop_motors(arrival_s)
+        return True
+
+    def _take_supervisor(self, request: crtp.SupervisorRequest, arrival_s: float) -> bool:
+        if request.kind == "arm":
+            if not self.armed:
+                self.arm(arrival_s)
+        elif request.kind in ("disarm", "emergency_stop"):
+            self.disarm()
+            self.high_level.plan = None
+        return True
+
+    def _fly_high_level(self, t_s: float) -> None:
+        """A high-level plan flies when no low-level setpoint holds the priority: it streams position
+        setpoints each tick, which keeps the watchdog fed as the firmware's does."""
+        target = self.high_level.setpoint(t_s)
+        if target is None or self.low_level_active or not self.armed or self.mode == VehicleMode.LANDING:
+            return
+        position, yaw_rad = target
+        self._sp_position = position
+        self._sp_yaw_deg = math.degrees(yaw_rad)
+        self._sp_arrival_s = t_s
+        self.mode = VehicleMode.POSITION
 
     def _take_position_target(self, sp: PositionTarget, arrival_s: float) -> bool:
         """A position setpoint for the onboard position controller: refused (counted) when not finite, or
@@ -296,6 +435,16 @@ class CrazyflieFirmware(Firmware):
     def estimate_rpy_deg(self) -> tuple[float, float, float]:
         return self.fusion.euler_rpy_deg()
 
+    @property
+    def fusion_q(self) -> tuple[float, float, float, float]:
+        """The attitude estimate (w, x, y, z)."""
+        return tuple(self.fusion.q)
+
+    def take_position_fix(self, pose: ExternalPose, t_s: float) -> None:
+        """A fix from an onboard positioning system (a simulated deck), into the estimator as extpose is,
+        without counting as uplink traffic."""
+        self._fuse_external(pose, t_s)
+
     # --- the loop ----------------------------------------------------------------------------------
     def tick(self, t_s: float, body: BodyState) -> tuple[float, ...]:
         """One stabilizer pass; rotor speeds (rad/s) whose k_T w^2 are the motor forces. The body is read for
@@ -308,6 +457,8 @@ class CrazyflieFirmware(Firmware):
         if not self.armed:
             self.controller.reinitialize(self.estimate_rpy_deg)
             return self._drive((0, 0, 0, 0))
+        if self.high_level.plan is not None:
+            self._fly_high_level(t_s)
         if self.mode == VehicleMode.LANDING:
             if body.on_ground or t_s - self._landing_since_s > self.params.landing_timeout_s:
                 self.disarm()
@@ -328,7 +479,7 @@ class CrazyflieFirmware(Firmware):
             sp = Setpoint(POSITION_MODES, (0.0, 0.0, self._sp_yaw_deg), position_m=self._sp_position)
             return self._drive(self._through_pid(sp))
         if self.mode == VehicleMode.ATTITUDE:
-            return self._drive(self._through_pid(self._attitude_setpoint()))
+            return self._drive(self._through_pid(self._sp_pid or self._attitude_setpoint()))
         if self.mode == VehicleMode.MOMENTS:
             return self._drive(self.force_torque.pwm(self._sp_thrust_n, self._sp_moment))
         return self._drive(self._through_pid(self._level_setpoint(0.0)))  # armed, idle: thrust 0

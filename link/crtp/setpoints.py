@@ -1,0 +1,208 @@
+"""Decoders of the CRTP packets that command a Crazyflie, into plain records in the firmware's own units.
+
+Takes in: a CrtpPacket on the commander (3), generic setpoint (7), localization (6), high-level
+commander (8) or supervisor (9) port.
+Gives out: one record per packet (below), or Malformed(reason) for a packet of the right port whose
+payload cannot be what it claims (wrong length, unknown type), or Unsupported(what) for a valid packet
+that the emulated firmware does not act on. Values stay in the units the Crazyflie's firmware decodes
+them in (degrees, its legacy pitch sign, thrust in PWM units 0..65535): these records are read only by
+the emulated firmware, which works in those units as the real one does; cfstack's own messages are SI.
+
+Sources: cflib 0.1.34 commander.py, high_level_commander.py, extpos.py/localization.py, supervisor.py;
+firmware crtp_commander_rpyt.c, crtp_commander_generic.c, crtp_localization_service.c,
+crtp_commander_high_level.c, supervisor.c (../shared/reference/crtp_cflib_emulation.md section 6).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+from link.crtp.packet import CrtpPacket, Port
+
+
+@dataclass(frozen=True)
+class Rpyt:
+    """Legacy setpoint (3:0, `<fffH>`): roll, pitch (as sent: cflib negates it), yaw rate, thrust."""
+
+    roll_deg: float
+    pitch_deg: float
+    yaw_rate_dps: float
+    thrust: int
+
+
+@dataclass(frozen=True)
+class StopSetpoint:
+    """Generic type 0: every mode off, thrust 0 (motors stop)."""
+
+
+@dataclass(frozen=True)
+class PositionSetpoint:
+    """Generic type 7: absolute position (m, world) and yaw (deg)."""
+
+    x_m: float
+    y_m: float
+    z_m: float
+    yaw_deg: float
+
+
+@dataclass(frozen=True)
+class NotifySetpointsStop:
+    """Meta (7:1) type 0: the low-level setpoints end; the high-level commander may take over."""
+
+
+@dataclass(frozen=True)
+class ExternalPosition:
+    """extpos (6:0): a position fix (m, world); attitude None for a position-only fix."""
+
+    x_m: float
+    y_m: float
+    z_m: float
+    attitude_wxyz: tuple[float, float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class HighLevel:
+    """A high-level commander request (8:0): kind takeoff / land / go_to / stop, group mask, target and
+    duration. For takeoff and land, z_m is the absolute height; go_to may be relative."""
+
+    kind: str
+    group_mask: int
+    x_m: float = 0.0
+    y_m: float = 0.0
+    z_m: float = 0.0
+    yaw_rad: float = 0.0
+    use_current_yaw: bool = False
+    duration_s: float = 0.0
+    relative: bool = False
+
+
+@dataclass(frozen=True)
+class SupervisorRequest:
+    """Supervisor (9): "state" (bitfield query, channel 0), "arm" / "disarm", "recover", "emergency_stop"."""
+
+    kind: str
+
+
+@dataclass(frozen=True)
+class Malformed:
+    reason: str
+
+
+@dataclass(frozen=True)
+class Unsupported:
+    what: str
+
+
+# generic setpoint types (crtp_commander_generic.c packetType)
+GENERIC_STOP, GENERIC_POSITION = 0, 7
+GENERIC_NAMES = {1: "velocity world (legacy)", 2: "z-distance (legacy)", 3: "cppm emulation", 4: "altitude hold",
+                 5: "hover (legacy)", 6: "full state", 8: "velocity world", 9: "z-distance", 10: "hover",
+                 11: "manual"}
+# high-level commander commands (high_level_commander.py)
+HL_STOP, HL_GO_TO, HL_TAKEOFF_2, HL_LAND_2, HL_GO_TO_2 = 3, 4, 7, 8, 12
+# supervisor commands (supervisor.py)
+SUPERVISOR_STATE = 0x0C
+SUPERVISOR_COMMANDS = {0x01: None, 0x02: "recover", 0x03: "emergency_stop", 0x04: "emergency_stop"}
+
+
+def _unpack(fmt: str, data: bytes, what: str):
+    if len(data) != struct.calcsize(fmt):
+        return Malformed(f"{what}: {len(data)} bytes, expected {struct.calcsize(fmt)}")
+    return struct.unpack(fmt, data)
+
+
+def decode_command(packet: CrtpPacket):
+    """The record of a commanding packet (see the module docstring); None for a port not handled here."""
+    port, channel, data = packet.port, packet.channel, packet.data
+    if port == Port.COMMANDER:
+        values = _unpack("<fffH", data, "RPYT setpoint")
+        return values if isinstance(values, Malformed) else Rpyt(*values)
+    if port == Port.GENERIC_SETPOINT:
+        return _generic(channel, data)
+    if port == Port.LOCALIZATION:
+        return _localization(channel, data)
+    if port == Port.HIGH_LEVEL:
+        return _high_level(data)
+    if port == Port.SUPERVISOR:
+        return _supervisor(channel, data)
+    return None
+
+
+def _generic(channel: int, data: bytes):
+    if not data:
+        return Malformed("generic setpoint without a type")
+    kind, body = data[0], data[1:]
+    if channel == 1:
+        return NotifySetpointsStop() if kind == 0 else Malformed(f"meta command {kind} unknown")
+    if channel != 0:
+        return Malformed(f"generic setpoint channel {channel} unknown")
+    if kind == GENERIC_STOP:
+        return StopSetpoint() if not body else Malformed("stop setpoint with a payload")
+    if kind == GENERIC_POSITION:
+        values = _unpack("<ffff", body, "position setpoint")
+        return values if isinstance(values, Malformed) else PositionSetpoint(*values)
+    if kind in GENERIC_NAMES:
+        return Unsupported(f"generic setpoint type {kind} ({GENERIC_NAMES[kind]})")
+    return Malformed(f"generic setpoint type {kind} unknown")
+
+
+def _localization(channel: int, data: bytes):
+    if channel == 0:
+        values = _unpack("<fff", data, "extpos")
+        return values if isinstance(values, Malformed) else ExternalPosition(*values)
+    if channel == 1 and data and data[0] == 8:  # GENERIC_TYPE EXT_POSE: x y z qx qy qz qw
+        values = _unpack("<fffffff", data[1:], "extpose")
+        if isinstance(values, Malformed):
+            return values
+        x, y, z, qx, qy, qz, qw = values
+        return ExternalPosition(x, y, z, (qw, qx, qy, qz))
+    if channel == 1 and data:
+        return Unsupported(f"localization packet type {data[0]}")
+    return Malformed(f"localization channel {channel} packet unknown")
+
+
+def _high_level(data: bytes):
+    if not data:
+        return Malformed("high-level command without a command byte")
+    cmd = data[0]
+    if cmd == HL_STOP:
+        values = _unpack("<BB", data, "high-level stop")
+        return values if isinstance(values, Malformed) else HighLevel("stop", values[1])
+    if cmd in (HL_TAKEOFF_2, HL_LAND_2):
+        values = _unpack("<BBff?f", data, "high-level takeoff/land")
+        if isinstance(values, Malformed):
+            return values
+        _, group, height, yaw, use_current, duration = values
+        return HighLevel("takeoff" if cmd == HL_TAKEOFF_2 else "land", group, z_m=height, yaw_rad=yaw,
+                         use_current_yaw=use_current, duration_s=duration)
+    if cmd == HL_GO_TO:
+        values = _unpack("<BBBfffff", data, "high-level go_to")
+        if isinstance(values, Malformed):
+            return values
+        _, group, relative, x, y, z, yaw, duration = values
+        return HighLevel("go_to", group, x, y, z, yaw, duration_s=duration, relative=bool(relative))
+    if cmd == HL_GO_TO_2:
+        values = _unpack("<BBBBfffff", data, "high-level go_to")
+        if isinstance(values, Malformed):
+            return values
+        _, group, relative, linear, x, y, z, yaw, duration = values
+        if linear:
+            return Unsupported("high-level go_to with linear interpolation")
+        return HighLevel("go_to", group, x, y, z, yaw, duration_s=duration, relative=bool(relative))
+    return Unsupported(f"high-level command {cmd}")
+
+
+def _supervisor(channel: int, data: bytes):
+    if not data:
+        return Malformed("supervisor packet without a command byte")
+    cmd = data[0]
+    if channel == 0:
+        return SupervisorRequest("state") if cmd == SUPERVISOR_STATE else Unsupported(f"supervisor query {cmd}")
+    if channel == 1 and cmd in SUPERVISOR_COMMANDS:
+        if cmd == 0x01:
+            if len(data) != 2:
+                return Malformed("arming request without its flag")
+            return SupervisorRequest("arm" if data[1] else "disarm")
+        return SupervisorRequest(SUPERVISOR_COMMANDS[cmd])
+    return Malformed(f"supervisor channel {channel} command {cmd} unknown")

@@ -1,0 +1,133 @@
+"""link.crtp against Bitcraze's cflib itself: its encoders make the packets our decoders read, and its TOC
+element parsers read the items our TOCs give (cflib is the client every Crazyflie script uses)."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import pytest
+
+pytest.importorskip("cflib", reason="cflib is in the test extra (pip install -e '.[test]')")
+from cflib.crazyflie.commander import Commander  # noqa: E402
+from cflib.crazyflie.high_level_commander import HighLevelCommander  # noqa: E402
+from cflib.crazyflie.localization import Localization  # noqa: E402
+from cflib.crazyflie.log import LogTocElement  # noqa: E402
+from cflib.crazyflie.param import ParamTocElement  # noqa: E402
+from cflib.crazyflie.supervisor import Supervisor  # noqa: E402
+
+from link.crtp import setpoints  # noqa: E402
+from link.crtp.packet import CRTP_MAX_DATA, CrtpPacket, Port, decode, encode, is_null  # noqa: E402
+from link.crtp.toc import Toc, TocEntry  # noqa: E402
+
+
+class _Platform:
+    def get_protocol_version(self) -> int:
+        return 12  # what the emulator reports (firmware CRTP_PROTOCOL_VERSION)
+
+
+class CapturingCrazyflie:
+    """What cflib's commanders need of a Crazyflie: send_packet (captured) and the protocol version."""
+
+    def __init__(self):
+        self.sent: list[CrtpPacket] = []
+        self.platform = _Platform()
+
+    def send_packet(self, pk, expected_reply=(), resend=False, timeout=0.2) -> None:  # noqa: ARG002
+        self.sent.append(decode(bytes((pk.header,)) + bytes(pk.data)))
+
+    def add_port_callback(self, port, cb) -> None:
+        pass
+
+    def last(self):
+        return setpoints.decode_command(self.sent[-1])
+
+
+def test_packet_header_and_limits():
+    assert encode(CrtpPacket(Port.LOG, 1, b"\x05")) == b"\x5d\x05"  # cflib's log reset: header 0x5D
+    assert decode(b"\x5d\x05") == CrtpPacket(5, 1, b"\x05")
+    assert decode(b"\x51\x05") == CrtpPacket(5, 1, b"\x05")  # legacy bits clear, as the firmware may send
+    assert decode(b"") is None and decode(bytes(32)) is None  # empty; 31 bytes of payload
+    assert decode(bytes(31)) is not None
+    assert is_null(b"\xff") and is_null(b"\xf3") and not is_null(b"\xfd")
+    with pytest.raises(ValueError):
+        encode(CrtpPacket(Port.LOG, 1, bytes(CRTP_MAX_DATA + 1)))
+
+
+def test_commander_packets_decode_to_what_cflib_sent():
+    cf = CapturingCrazyflie()
+    commander = Commander(cf)
+    commander.send_setpoint(2.5, -3.0, 45.0, 38000)
+    rpyt = cf.last()
+    assert rpyt.roll_deg == 2.5 and rpyt.pitch_deg == 3.0  # cflib sends -pitch: the firmware's legacy sign
+    assert rpyt.yaw_rate_dps == 45.0 and rpyt.thrust == 38000
+    commander.send_stop_setpoint()
+    assert isinstance(cf.last(), setpoints.StopSetpoint)
+    commander.send_position_setpoint(1.0, 2.0, 0.5, 90.0)
+    assert cf.last() == setpoints.PositionSetpoint(1.0, 2.0, 0.5, 90.0)
+    commander.send_notify_setpoint_stop()
+    assert isinstance(cf.last(), setpoints.NotifySetpointsStop)
+    commander.send_hover_setpoint(0.1, 0.0, 0.0, 0.4)
+    assert isinstance(cf.last(), setpoints.Unsupported)  # decoded as valid, not yet flown (counted)
+
+
+def test_high_level_and_localization_and_supervisor_packets():
+    cf = CapturingCrazyflie()
+    hl = HighLevelCommander(cf)
+    hl.takeoff(0.75, 2.5)
+    takeoff = cf.last()
+    assert (takeoff.kind, takeoff.z_m, takeoff.duration_s, takeoff.use_current_yaw) == ("takeoff", 0.75, 2.5, False)
+    hl.takeoff(0.75, 2.5, yaw=None)
+    assert cf.last().use_current_yaw  # yaw None: "use the current yaw"
+    hl.go_to(0.5, -0.25, 1.0, 0.5, 3.0, relative=True)
+    go = cf.last()
+    assert (go.kind, go.x_m, go.y_m, go.z_m, go.yaw_rad, go.duration_s, go.relative) == \
+        ("go_to", 0.5, -0.25, 1.0, 0.5, 3.0, True)
+    hl.land(0.0, 2.0, yaw=1.0)
+    land = cf.last()
+    assert (land.kind, land.z_m, land.yaw_rad, land.use_current_yaw) == ("land", 0.0, 1.0, False)
+    hl.stop()
+    assert cf.last().kind == "stop"
+    loc = Localization(cf)
+    loc.send_extpose((1.0, 2.0, 3.0), (0.0, 0.0, 0.6, 0.8))
+    pose = cf.last()
+    assert (pose.x_m, pose.y_m, pose.z_m) == (1.0, 2.0, 3.0)
+    assert pose.attitude_wxyz == pytest.approx((0.8, 0.0, 0.0, 0.6))  # cflib sends x, y, z, w
+    loc.send_extpos((1.0, 2.0, 3.0))
+    assert cf.last() == setpoints.ExternalPosition(1.0, 2.0, 3.0, None)
+    supervisor = Supervisor(cf)
+    supervisor.send_arming_request(True)
+    assert cf.last() == setpoints.SupervisorRequest("arm")
+    supervisor.send_arming_request(False)
+    assert cf.last() == setpoints.SupervisorRequest("disarm")
+
+
+def test_malformed_and_non_finite_payloads_are_named_not_raised():
+    for packet in (CrtpPacket(Port.COMMANDER, 0, b"\x00" * 13), CrtpPacket(Port.GENERIC_SETPOINT, 0, b""),
+                   CrtpPacket(Port.GENERIC_SETPOINT, 0, b"\x07" + bytes(15)),
+                   CrtpPacket(Port.GENERIC_SETPOINT, 0, b"\x63"), CrtpPacket(Port.HIGH_LEVEL, 0, b"\x07\x00"),
+                   CrtpPacket(Port.LOCALIZATION, 0, bytes(5)), CrtpPacket(Port.SUPERVISOR, 1, b"\x01")):
+        assert isinstance(setpoints.decode_command(packet), setpoints.Malformed), packet
+    nan = setpoints.decode_command(CrtpPacket(Port.COMMANDER, 0, struct.pack("<fffH", math.nan, 0, 0, 0)))
+    assert math.isnan(nan.roll_deg)  # decoded as sent: the firmware side refuses it (tests/simulator)
+    assert setpoints.decode_command(CrtpPacket(Port.CONSOLE, 0, b"hi")) is None
+
+
+def test_toc_items_parse_in_cflibs_own_elements():
+    log = Toc("log", [TocEntry("stateEstimate", "x", "float"), TocEntry("motor", "m1", "uint16_t")])
+    param = Toc("param", [TocEntry("pid_rate", "roll_kp", "float"),
+                          TocEntry("locSrv", "extPosStdDev", "float", read_only=True),
+                          TocEntry("commander", "enHighLevel", "uint8_t")])
+    for toc, element in ((log, LogTocElement), (param, ParamTocElement)):
+        info = toc.info()
+        assert info[0] == 3 and struct.unpack_from("<HI", info, 1) == (len(toc.entries), toc.crc)
+        for index, entry in enumerate(toc.entries):
+            item = toc.item(index)
+            assert len(item) <= CRTP_MAX_DATA and struct.unpack_from("<H", item, 1)[0] == index
+            parsed = element(index, item[3:])  # what cflib's toc.py hands the element: after cmd and index
+            assert (parsed.group, parsed.name, parsed.ctype) == (entry.group, entry.name, entry.type_name)
+        assert toc.item(len(toc.entries)) == b"\x02"  # out of range: the command byte alone, as log.c does
+    assert ParamTocElement(1, param.item(1)[3:]).get_readable_access() == "RO"
+    assert ParamTocElement(0, param.item(0)[3:]).get_readable_access() == "RW"
+    changed = Toc("log", [TocEntry("stateEstimate", "y", "float"), TocEntry("motor", "m1", "uint16_t")])
+    assert changed.crc != log.crc  # a changed TOC invalidates cflib's cache (keyed by the CRC)

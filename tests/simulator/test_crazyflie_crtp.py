@@ -1,0 +1,119 @@
+"""The faithful firmware's CRTP commanders (crtp_commander_rpyt.c, crtp_commander_high_level.c, the
+commander's watchdog): thrust lock, the 1000 / 60000 clamps, auto-arming, the watchdog re-locking the
+thrust, non-finite setpoints refused, the high-level commander's plans and its enable parameter."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from link.crtp.setpoints import HighLevel, NotifySetpointsStop, PositionSetpoint, Rpyt, StopSetpoint
+from model.vehicle import load_vehicle
+from simulator.crazyflie.high_level_commander import smooth_step
+from simulator.firmware import load_firmware_params
+from simulator.vehicle_sim import SimVehicle
+
+CF21 = load_vehicle("cf21")
+PARAMS = load_firmware_params()
+
+
+def _sim() -> SimVehicle:
+    return SimVehicle(CF21, np.random.default_rng(5), initial_position_enu_m=(0.0, 0.0, 0.0), firmware="crazyflie")
+
+
+def _stream(sim: SimVehicle, record, seconds: float, period_s: float = 0.01) -> None:
+    """Send `record` every period_s for `seconds` (a cflib script's loop), stepping the vehicle."""
+    for _ in range(round(seconds / period_s)):
+        sim.handle_uplink(record, sim.t_s)
+        sim.run(period_s)
+
+
+def test_thrust_is_locked_until_a_zero_thrust_packet_then_clamped():
+    sim = _sim()
+    fw = sim.firmware
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 45000), 0.2)
+    assert fw.armed  # the default build arms itself on a setpoint (no CONFIG_MOTORS_REQUIRE_ARMING)
+    assert fw._sp_pid.thrust_pwm == 0.0 and sim.truth.position_enu_m[2] == 0.0  # locked: still on the floor
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 0), 0.02)
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 999), 0.02)
+    assert fw._sp_pid.thrust_pwm == 0.0  # below MIN_THRUST (1000): 0
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 65000), 0.02)
+    assert fw._sp_pid.thrust_pwm == 60000.0  # capped at MAX_THRUST
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 45000), 1.0)
+    assert sim.truth.position_enu_m[2] > 0.1 and all(fw.motor_pwm)  # unlocked: it climbs
+
+
+def test_non_finite_setpoints_are_refused_and_counted():
+    sim = _sim()
+    fw = sim.firmware
+    before = fw.rejected_commands
+    _stream(sim, Rpyt(math.nan, 0.0, 0.0, 0), 0.02)
+    _stream(sim, PositionSetpoint(0.0, math.inf, 1.0, 0.0), 0.02)
+    assert fw.rejected_commands - before == 4 and not fw.armed
+
+
+def test_the_watchdog_levels_then_stops_and_locks_the_thrust_again():
+    sim = _sim()
+    fw = sim.firmware
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 0), 0.02)
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 40000), 0.5)
+    sim.run(PARAMS.watchdog_shutdown_timeout_s + 0.1)  # silence: level at 0.5 s, motors off at 2 s
+    assert not fw.armed and not any(fw.motor_pwm)
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 40000), 0.1)  # priority fell to DISABLE: the lock is on again
+    assert fw.armed and fw._sp_pid.thrust_pwm == 0.0
+
+
+def test_stop_setpoint_stops_the_motors():
+    sim = _sim()
+    fw = sim.firmware
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 0), 0.02)
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 40000), 0.2)
+    assert any(fw.motor_pwm)
+    _stream(sim, StopSetpoint(), 0.02)
+    assert not any(fw.motor_pwm)
+
+
+def test_the_no_jerk_blend_is_rest_to_rest():
+    h = 1e-4
+    assert smooth_step(0.0) == 0.0 and smooth_step(1.0) == 1.0 and smooth_step(0.5) == 0.5  # odd symmetry
+    for u in (0.0, 1.0):  # velocity, acceleration and jerk vanish at both ends (finite differences)
+        values = [smooth_step(u + k * h) for k in (-2, -1, 0, 1, 2)]
+        assert abs(values[3] - values[1]) / (2 * h) < 1e-6
+        assert abs(values[3] - 2 * values[2] + values[1]) / h**2 < 1e-4
+    assert all(smooth_step(a) < smooth_step(b) for a, b in zip(np.linspace(0.01, 0.99, 50),
+                                                               np.linspace(0.02, 1.0, 50), strict=True))
+
+
+def _with_position_fixes(sim: SimVehicle, seconds: float, record=None) -> None:
+    """Run with the vehicle's true position as its external fixes (what the positioning deck gives)."""
+    from link.messages import ExternalPose
+
+    for _ in range(round(seconds / 0.01)):
+        truth = sim.truth
+        sim.firmware.take_position_fix(ExternalPose(sim.t_s, truth.position_enu_m, truth.attitude_wxyz), sim.t_s)
+        if record is not None:
+            sim.handle_uplink(record, sim.t_s)
+        sim.run(0.01)
+
+
+def test_high_level_takeoff_needs_the_enable_parameter_and_a_position_then_reaches_its_height():
+    sim = _sim()
+    fw = sim.firmware
+    takeoff = HighLevel("takeoff", 0, z_m=0.6, duration_s=2.0)
+    _stream(sim, takeoff, 0.01)
+    assert fw.crtp_ignored == 1 and fw.high_level.plan is None  # no position estimate yet: nothing to plan from
+    _with_position_fixes(sim, 0.5)
+    fw.high_level_enabled = False
+    _stream(sim, takeoff, 0.01)
+    assert fw.crtp_ignored == 2
+    fw.high_level_enabled = True
+    _with_position_fixes(sim, 0.01, takeoff)
+    _with_position_fixes(sim, 3.0)
+    assert abs(sim.truth.position_enu_m[2] - 0.6) < 0.1
+    _with_position_fixes(sim, 1.0, PositionSetpoint(0.2, 0.0, 0.6, 0.0))  # a low-level setpoint has priority
+    assert fw.low_level_active and fw._sp_position == (0.2, 0.0, 0.6)
+    _with_position_fixes(sim, 0.01, NotifySetpointsStop())
+    _with_position_fixes(sim, 0.5)
+    # the plan flies again: its end, above where the takeoff started (the estimate then)
+    assert fw.mode.name == "POSITION" and fw._sp_position[2] == 0.6 and math.hypot(*fw._sp_position[:2]) < 0.01
