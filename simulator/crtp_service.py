@@ -74,7 +74,7 @@ def _rpy(index: int) -> Callable:
 
 # (group, name, type, getter of the CrazyflieFirmware): the firmware's names and units (stabilizer.c,
 # sensors, pm, power_distribution): stateEstimate in m, m/s and deg (pitch in the firmware's legacy sign),
-# gyro in deg/s, acc in g, pm.vbat in V, motor.m1..m4 in PWM units
+# gyro in deg/s, acc in g, kalman.varP* in m^2, pm.vbat in V, motor.m1..m4 in PWM units
 LOG_VARIABLES: tuple[tuple[str, str, str, Callable], ...] = (
     *(("stateEstimate", axis, "float", _position(i)) for i, axis in enumerate("xyz")),
     *(("stateEstimate", f"v{axis}", "float", _velocity(i)) for i, axis in enumerate("xyz")),
@@ -83,6 +83,7 @@ LOG_VARIABLES: tuple[tuple[str, str, str, Callable], ...] = (
     *(("stabilizer", angle, "float", _rpy(i)) for i, angle in enumerate(("roll", "pitch", "yaw"))),
     *(("gyro", axis, "float", _item("gyro_dps", i)) for i, axis in enumerate("xyz")),
     *(("acc", axis, "float", _item("acc_g", i)) for i, axis in enumerate("xyz")),
+    *(("kalman", f"varP{axis.upper()}", "float", _item("position_variance_m2", i)) for i, axis in enumerate("xyz")),
     ("pm", "vbat", "float", lambda fw: fw.battery.voltage_v),
     *(("motor", f"m{i + 1}", "uint16_t", _item("motor_pwm", i)) for i in range(4)),
 )
@@ -115,10 +116,16 @@ def make_params(fw) -> list[Param]:
     def set_high_level(value) -> None:
         fw.high_level_enabled = bool(value)
 
+    def reset_estimation(value) -> None:
+        if value:
+            fw.position.reset()
+
     return [
         fixed(TocEntry("stabilizer", "controller", "uint8_t"), lambda: 1, keep),  # 1 = PID (the one emulated)
         fixed(TocEntry("stabilizer", "estimator", "uint8_t"), lambda: 1, keep),  # 1 = complementary
         Param(TocEntry("commander", "enHighLevel", "uint8_t"), lambda: int(fw.high_level_enabled), set_high_level),
+        # estimator_kalman.c: 1 resets the position estimate, and the estimator sets it back to 0
+        Param(TocEntry("kalman", "resetEstimation", "uint8_t"), lambda: 0, reset_estimation),
         *_pid_params("pid_attitude", fw.controller.attitude.attitude),
         *_pid_params("pid_rate", fw.controller.attitude.rate),
         Param(TocEntry("locSrv", "extPosStdDev", "float", read_only=True), lambda: fw.cf.ext_pos_std_m),

@@ -47,6 +47,27 @@ class PositionSetpoint:
 
 
 @dataclass(frozen=True)
+class VelocityWorld:
+    """Generic type 8: velocity (m/s, world) and yaw rate (deg/s, counter-clockwise positive)."""
+
+    vx_mps: float
+    vy_mps: float
+    vz_mps: float
+    yaw_rate_dps: float
+
+
+@dataclass(frozen=True)
+class Hover:
+    """Generic type 10: velocity in the yaw frame (m/s), yaw rate (deg/s, counter-clockwise positive) and
+    absolute height (m); what cflib's MotionCommander streams."""
+
+    vx_mps: float
+    vy_mps: float
+    yaw_rate_dps: float
+    z_m: float
+
+
+@dataclass(frozen=True)
 class NotifySetpointsStop:
     """Meta (7:1) type 0: the low-level setpoints end; the high-level commander may take over."""
 
@@ -95,10 +116,9 @@ class Unsupported:
 
 
 # generic setpoint types (crtp_commander_generic.c packetType)
-GENERIC_STOP, GENERIC_POSITION = 0, 7
+GENERIC_STOP, GENERIC_POSITION, GENERIC_VELOCITY_WORLD, GENERIC_HOVER = 0, 7, 8, 10
 GENERIC_NAMES = {1: "velocity world (legacy)", 2: "z-distance (legacy)", 3: "cppm emulation", 4: "altitude hold",
-                 5: "hover (legacy)", 6: "full state", 8: "velocity world", 9: "z-distance", 10: "hover",
-                 11: "manual"}
+                 5: "hover (legacy)", 6: "full state", 9: "z-distance", 11: "manual"}
 # high-level commander commands (high_level_commander.py)
 HL_STOP, HL_GO_TO, HL_TAKEOFF_2, HL_LAND_2, HL_GO_TO_2 = 3, 4, 7, 8, 12
 # supervisor commands (supervisor.py)
@@ -139,9 +159,10 @@ def _generic(channel: int, data: bytes):
         return Malformed(f"generic setpoint channel {channel} unknown")
     if kind == GENERIC_STOP:
         return StopSetpoint() if not body else Malformed("stop setpoint with a payload")
-    if kind == GENERIC_POSITION:
-        values = _unpack("<ffff", body, "position setpoint")
-        return values if isinstance(values, Malformed) else PositionSetpoint(*values)
+    records = {GENERIC_POSITION: PositionSetpoint, GENERIC_VELOCITY_WORLD: VelocityWorld, GENERIC_HOVER: Hover}
+    if kind in records:
+        values = _unpack("<ffff", body, f"generic setpoint type {kind}")
+        return values if isinstance(values, Malformed) else records[kind](*values)
     if kind in GENERIC_NAMES:
         return Unsupported(f"generic setpoint type {kind} ({GENERIC_NAMES[kind]})")
     return Malformed(f"generic setpoint type {kind} unknown")

@@ -14,9 +14,9 @@ As in controller_pid.c:
 - roll or pitch in velocity mode overwrite the attitude PID's rate with the setpoint's rate;
 - the rate PIDs read (gyro.x, -gyro.y, gyro.z) (the legacy pitch sign) and the yaw output is negated;
 - a thrust of 0 zeroes the outputs, resets the PIDs and sets the desired yaw to the actual yaw.
-- with x, y or z absolute, the position and velocity PIDs (position_controller.py) run on every fifth tick
-  (POSITION_RATE 100 Hz) and give the desired roll and pitch and the thrust, from the onboard position
-  estimate.
+- with x, y or z absolute or in velocity mode, the position and velocity PIDs (position_controller.py) run
+  on every fifth tick (POSITION_RATE 100 Hz) and give the desired roll and pitch and the thrust, from the
+  onboard position estimate.
 """
 
 from __future__ import annotations
@@ -38,6 +38,8 @@ class Setpoint:
     attitude_rate_dps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     thrust_pwm: float = 0.0
     position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world ENU, for x, y, z in absolute mode
+    velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  # for x, y, z in velocity mode
+    velocity_body: bool = False  # velocity x, y in the yaw frame (the hover setpoint), else world ENU
 
 
 @dataclass(frozen=True)
@@ -91,10 +93,11 @@ class ControllerPid:
             desired[2] = sp.attitude_deg[2]
         desired[2] = _cap_angle(desired[2])
         x_mode, y_mode, z_mode = sp.modes[0], sp.modes[1], sp.modes[2]
-        position_loop = MODE_ABS in (x_mode, y_mode, z_mode) and self.position is not None
+        position_loop = (x_mode, y_mode, z_mode) != (MODE_DISABLE,) * 3 and self.position is not None
         if position_loop and self._tick % self.position_every == 0:
             self._position_output = self.position.update(sp.position_m, position_state[0], position_state[1],
-                                                         state_deg[2])
+                                                         state_deg[2], (x_mode, y_mode, z_mode), sp.velocity_mps,
+                                                         sp.velocity_body)
         self._tick += 1
         roll_pos, pitch_pos, thrust_pos = self._position_output
         thrust = sp.thrust_pwm if z_mode == MODE_DISABLE or not position_loop else thrust_pos

@@ -1,7 +1,8 @@
 """The position and velocity PIDs (crazyflie-firmware controller/position_controller_pid.c), at 100 Hz.
 
 Takes in: the [position_controller] gains of simulator/params/crazyflie.toml; per update the desired
-position (m, world), the estimated position and velocity (m, m/s, world) and the estimated yaw (deg).
+position (m, world) or, per axis in velocity mode, the desired velocity (m/s, world or yaw frame), the
+estimated position and velocity (m, m/s, world) and the estimated yaw (deg).
 Gives out: the desired roll and pitch (deg, legacy frame: pitch positive nose up) and the thrust (PWM units).
 
 As in the firmware: positions and velocities are turned into the yaw frame (body x forward, y left, level);
@@ -15,6 +16,8 @@ from __future__ import annotations
 import math
 
 from simulator.crazyflie.pid import Pid
+
+MODE_ABS = 1  # controller_pid.MODE_ABS (stabilizer_types.h modeAbs)
 
 
 class PositionController:
@@ -39,15 +42,21 @@ class PositionController:
         for pid, actual in zip(self.velocity, velocity, strict=True):
             pid.reset(actual)
 
-    def update(self, desired_m, position_m, velocity_mps, yaw_deg: float) -> tuple[float, float, float]:
-        """(roll deg, pitch deg legacy, thrust PWM)."""
+    def update(self, desired_m, position_m, velocity_mps, yaw_deg: float, modes=(1, 1, 1),
+               desired_velocity_mps=(0.0, 0.0, 0.0), velocity_body: bool = False) -> tuple[float, float, float]:
+        """(roll deg, pitch deg legacy, thrust PWM). Per axis (modes x, y, z: 1 absolute, else velocity) the
+        position PID gives the velocity setpoint, or the setpoint's own velocity is flown: world x, y turned
+        into the yaw frame unless velocity_body (positionController)."""
         c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
         body = _to_yaw_frame
         sp_x, sp_y = body(desired_m, c, s)
         st_x, st_y = body(position_m, c, s)
-        vx_sp = self.position[0].update(sp_x, st_x)
-        vy_sp = self.position[1].update(sp_y, st_y)
-        vz_sp = self.position[2].update(desired_m[2], position_m[2])
+        yaw_frame_vx, yaw_frame_vy = (desired_velocity_mps[0], desired_velocity_mps[1]) if velocity_body else \
+            body(desired_velocity_mps, c, s)
+        vx_sp = self.position[0].update(sp_x, st_x) if modes[0] == MODE_ABS else yaw_frame_vx
+        vy_sp = self.position[1].update(sp_y, st_y) if modes[1] == MODE_ABS else yaw_frame_vy
+        vz_sp = self.position[2].update(desired_m[2], position_m[2]) if modes[2] == MODE_ABS \
+            else desired_velocity_mps[2]
         vx, vy = body(velocity_mps, c, s)
         pitch = -self.velocity[0].update(vx_sp, vx)
         roll = -self.velocity[1].update(vy_sp, vy)

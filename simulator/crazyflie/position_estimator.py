@@ -3,7 +3,9 @@ fuses extpos in its Kalman filter; this is a complementary filter with that filt
 
 Takes in: per estimator update (250 Hz) the attitude estimate (w, x, y, z), the specific force (m/s^2, body)
 and dt; per external fix its position (ENU, m) and sample time, and the time since the previous fix.
-Gives out: position (m) and velocity (m/s), world ENU; `valid` once a fix has arrived.
+Gives out: position (m) and velocity (m/s), world ENU; `valid` once a fix has arrived; the position
+variance per axis (m^2: the Kalman filter's initial one before a fix, then the posterior P = K R of the
+steady-state filter whose gain K each fix applies); `reset()` (kalman.resetEstimation).
 
 Predict: a = R(q) f - g e_z; v += a dt; p += v dt. Correct, for a fix z at sample time t_z against the
 estimate then (its history): e = z - p(t_z); p += L_p dt_fix e; v += L_v dt_fix e, with w = sqrt(s_a / (s_p
@@ -19,13 +21,20 @@ from simulator.crazyflie.history import TimeHistory
 
 
 class PositionEstimator:
-    def __init__(self, accel_density: float, pos_std_m: float, gravity_mps2: float):
+    def __init__(self, accel_density: float, pos_std_m: float, gravity_mps2: float,
+                 initial_std_m: tuple[float, float, float] = (0.0, 0.0, 0.0)):
         self.accel_density = accel_density
         self.pos_std_m = pos_std_m
         self.gravity = gravity_mps2
+        self.initial_variance_m2 = tuple(s * s for s in initial_std_m)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the position (kalman.resetEstimation): the next fix sets it again."""
         self.p = [0.0, 0.0, 0.0]
         self.v = [0.0, 0.0, 0.0]
         self.valid = False
+        self.variance_m2 = self.initial_variance_m2  # per axis: the initial, then the fixes' posterior
         self._history = TimeHistory()  # (sample time, position) per update
 
     def predict(self, t_s: float, q, f_body, dt: float) -> None:
@@ -53,6 +62,7 @@ class PositionEstimator:
         then = self._history.at(time_s) or tuple(self.p)
         w = math.sqrt(self.accel_density / (self.pos_std_m * math.sqrt(dt_fix)))
         gain_p, gain_v = math.sqrt(2.0) * w * dt_fix, w * w * dt_fix
+        self.variance_m2 = (gain_p * self.pos_std_m**2,) * 3  # the posterior P = K R of the filter of that gain
         for k in range(3):
             e = position_enu_m[k] - then[k]
             self.p[k] += gain_p * e

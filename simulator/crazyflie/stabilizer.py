@@ -67,6 +67,9 @@ G_MPS2 = 9.81  # the firmware's G (physicalConstants.h GRAVITY_MAGNITUDE), for m
 ATTITUDE_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS)
 LEVEL_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_VELOCITY)
 POSITION_MODES = (MODE_ABS, MODE_ABS, MODE_ABS, MODE_DISABLE, MODE_DISABLE, MODE_ABS)
+# crtp_commander_generic.c velocityDecoder and hoverDecoder: yaw as a rate
+VELOCITY_WORLD_MODES = (MODE_VELOCITY, MODE_VELOCITY, MODE_VELOCITY, MODE_DISABLE, MODE_DISABLE, MODE_VELOCITY)
+HOVER_MODES = (MODE_VELOCITY, MODE_VELOCITY, MODE_ABS, MODE_DISABLE, MODE_DISABLE, MODE_VELOCITY)
 # supervisorOverrideSetpoint on a position setpoint: x, y off, level, yaw rate 0, z kept
 LEVEL_HOLDING_Z_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS, MODE_VELOCITY)
 
@@ -94,6 +97,7 @@ class CrazyflieParams:
     position_gains: dict
     position_rate_hz: float
     ext_pos_std_m: float
+    initial_position_std_m: tuple[float, float, float]
     source: str
 
 
@@ -131,6 +135,8 @@ def load_crazyflie_params(name_or_path: str | Path = "crazyflie") -> CrazyfliePa
         position_gains=_position_gains(p.table("position_controller")),
         position_rate_hz=p.table("position_controller").number("rate_hz", minimum=1.0),
         ext_pos_std_m=p.table("position_estimator").number("pos_std_m", minimum=1e-9),
+        initial_position_std_m=(p.table("position_estimator").number("initial_std_xy_m", minimum=0.0),) * 2
+        + (p.table("position_estimator").number("initial_std_z_m", minimum=0.0),),
         source=p.source,
     )
 
@@ -172,7 +178,8 @@ class CrazyflieFirmware(Firmware):
         self.controller = ControllerPid(AttitudeController(cf.pid_attitude, cf.pid_rate, dt), dt,
                                         PositionController(cf.position_gains, 1.0 / cf.position_rate_hz),
                                         position_every=max(1, round(cf.attitude_rate_hz / cf.position_rate_hz)))
-        self.position = PositionEstimator(vehicle.imu.accel_noise_density, cf.ext_pos_std_m, G_MPS2)
+        self.position = PositionEstimator(vehicle.imu.accel_noise_density, cf.ext_pos_std_m, G_MPS2,
+                                          cf.initial_position_std_m)
         self._sp_position = (0.0, 0.0, 0.0)
         self._sp_yaw_deg = 0.0
         self._level_holds_z = False
@@ -254,6 +261,8 @@ class CrazyflieFirmware(Firmware):
                 self.low_level_active = True
                 return True
             return False
+        if isinstance(record, (crtp.VelocityWorld, crtp.Hover)):
+            return self._take_velocity(record, arrival_s)
         if isinstance(record, crtp.StopSetpoint):
             self.low_level_active = True
             self._stop_motors(arrival_s)
@@ -288,6 +297,27 @@ class CrazyflieFirmware(Firmware):
         self._sp_pid = setpoint
         self._sp_thrust_n = setpoint.thrust_pwm / self._pwm_per_n  # what the watchdog's level-out keeps
         self.mode = VehicleMode.ATTITUDE
+        return True
+
+    def _take_velocity(self, sp, arrival_s: float) -> bool:
+        """Velocity world (x, y, z velocity) or hover (x, y velocity in the yaw frame, z absolute), yaw rate:
+        flown by the position controller's velocity PIDs; refused without a position estimate, as a
+        position setpoint is (the velocity PIDs fly on the estimate's velocity)."""
+        values = tuple(vars(sp).values())
+        if not all(math.isfinite(v) for v in values) or not self.position.valid:
+            self.rejected_commands += 1
+            return False
+        self._auto_arm(arrival_s, values)
+        hover = isinstance(sp, crtp.Hover)
+        modes = HOVER_MODES if hover else VELOCITY_WORLD_MODES
+        velocity = (sp.vx_mps, sp.vy_mps, 0.0 if hover else sp.vz_mps)
+        height = sp.z_m if hover else self.position.p[2]
+        self._sp_position = (self.position.p[0], self.position.p[1], height)  # what a watchdog level-out holds
+        self._sp_pid = Setpoint(modes, (0.0, 0.0, 0.0), (0.0, 0.0, sp.yaw_rate_dps), position_m=self._sp_position,
+                                velocity_mps=velocity, velocity_body=hover)
+        self._sp_arrival_s = arrival_s
+        self.low_level_active = True
+        self.mode = VehicleMode.POSITION
         return True
 
     def _stop_motors(self, arrival_s: float) -> None:
@@ -348,6 +378,7 @@ class CrazyflieFirmware(Firmware):
         position, yaw_rad = target
         self._sp_position = position
         self._sp_yaw_deg = math.degrees(yaw_rad)
+        self._sp_pid = None
         self._sp_arrival_s = t_s
         self.mode = VehicleMode.POSITION
 
@@ -368,6 +399,7 @@ class CrazyflieFirmware(Firmware):
         self._sp_arrival_s = arrival_s
         self._sp_position = tuple(float(v) for v in sp.position_enu_m)
         self._sp_yaw_deg = math.degrees(sp.yaw_enu_rad)
+        self._sp_pid = None
         self.mode = VehicleMode.POSITION
         return True
 
@@ -436,6 +468,10 @@ class CrazyflieFirmware(Firmware):
         return self.fusion.euler_rpy_deg()
 
     @property
+    def position_variance_m2(self) -> tuple[float, float, float]:
+        return self.position.variance_m2
+
+    @property
     def fusion_q(self) -> tuple[float, float, float, float]:
         """The attitude estimate (w, x, y, z)."""
         return tuple(self.fusion.q)
@@ -476,7 +512,7 @@ class CrazyflieFirmware(Firmware):
                 return self._drive(self._through_pid(Setpoint(LEVEL_HOLDING_Z_MODES, position_m=self._sp_position)))
             return self._drive(self._through_pid(self._level_setpoint(self._sp_thrust_n)))
         if self.mode == VehicleMode.POSITION:
-            sp = Setpoint(POSITION_MODES, (0.0, 0.0, self._sp_yaw_deg), position_m=self._sp_position)
+            sp = self._sp_pid or Setpoint(POSITION_MODES, (0.0, 0.0, self._sp_yaw_deg), position_m=self._sp_position)
             return self._drive(self._through_pid(sp))
         if self.mode == VehicleMode.ATTITUDE:
             return self._drive(self._through_pid(self._sp_pid or self._attitude_setpoint()))

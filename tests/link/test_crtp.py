@@ -67,8 +67,12 @@ def test_commander_packets_decode_to_what_cflib_sent():
     assert cf.last() == setpoints.PositionSetpoint(1.0, 2.0, 0.5, 90.0)
     commander.send_notify_setpoint_stop()
     assert isinstance(cf.last(), setpoints.NotifySetpointsStop)
-    commander.send_hover_setpoint(0.1, 0.0, 0.0, 0.4)
-    assert isinstance(cf.last(), setpoints.Unsupported)  # decoded as valid, not yet flown (counted)
+    commander.send_hover_setpoint(0.25, -0.5, 30.0, 0.4)
+    assert vars(cf.last()) == pytest.approx(vars(setpoints.Hover(0.25, -0.5, 30.0, 0.4)))  # float32 on the wire
+    commander.send_velocity_world_setpoint(0.5, 0.25, -0.25, -10.0)
+    assert vars(cf.last()) == vars(setpoints.VelocityWorld(0.5, 0.25, -0.25, -10.0))  # exact in float32
+    commander.send_zdistance_setpoint(1.0, 2.0, 3.0, 0.5)
+    assert isinstance(cf.last(), setpoints.Unsupported)  # decoded as valid, not flown (counted)
 
 
 def test_high_level_and_localization_and_supervisor_packets():

@@ -97,6 +97,16 @@ class Emulator:
             if self.truth is not None or time.monotonic() > deadline:
                 return self.truth
 
+    def wait_sim(self, seconds: float) -> TruthState:
+        """Wait until the vehicle's clock (the truth's time) has advanced `seconds`: a loaded machine may run
+        the realtime emulator behind the wall clock, and the commands act in simulated time."""
+        start = self.latest_truth().time_s
+        deadline = time.monotonic() + 10.0 * seconds + 10.0
+        while self.latest_truth().time_s < start + seconds:
+            assert time.monotonic() < deadline, "the emulator's clock stopped"
+            time.sleep(0.02)
+        return self.truth
+
     def stop(self) -> str:
         """SIGINT, as Ctrl-C; the emulator's summary line."""
         self.truth_link.close()
@@ -221,16 +231,13 @@ def test_high_level_takeoff_go_to_land_reach_their_targets(emulator):
         cf.param.set_value("commander.enHighLevel", 1)
         hl = cf.high_level_commander
         hl.takeoff(0.5, 2.0)
-        time.sleep(3.5)
-        took_off = emu.latest_truth().position_enu_m
+        took_off = emu.wait_sim(3.5).position_enu_m
         hl.go_to(0.4, -0.3, 0.7, 0.0, 2.5)
-        time.sleep(4.0)
-        went = emu.latest_truth().position_enu_m
+        went = emu.wait_sim(4.0).position_enu_m
         hl.land(0.0, 3.0)
-        time.sleep(4.0)
-        landed = emu.latest_truth().position_enu_m
+        landed = emu.wait_sim(4.0).position_enu_m
         hl.stop()
-        time.sleep(0.5)
+        emu.wait_sim(0.5)
     assert math.dist(took_off, (0.0, 0.0, 0.5)) < 0.1, took_off
     assert math.dist(went, (0.4, -0.3, 0.7)) < 0.1, went
     assert landed[2] < 0.05 and math.dist(landed[:2], (0.4, -0.3)) < 0.1, landed
@@ -267,3 +274,25 @@ def test_malformed_packets_are_counted_and_ignored_and_the_emulator_keeps_answer
     summary = emu.stop()
     for counted in ("3 malformed", "1 unknown,", "2 unknown toc id", "1 non finite"):
         assert counted in summary, summary
+
+
+def test_motion_commander_flies_body_frame_moves_on_hover_setpoints(emulator):
+    """cflib's MotionCommander: it resets the estimator (kalman.resetEstimation), takes off and moves on
+    hover setpoints (velocity in the body's yaw frame, absolute height) streamed from its own thread."""
+    from cflib.positioning.motion_commander import MotionCommander
+
+    emu = emulator()
+    with _connect(emu.uri) as scf:
+        mc = MotionCommander(scf, default_height=0.5)
+        mc.take_off()
+        up = emu.wait_sim(1.0).position_enu_m
+        mc.forward(0.5)  # +x: the vehicle starts facing east (yaw 0)
+        forward = emu.wait_sim(0.5).position_enu_m
+        mc.turn_left(90)
+        mc.forward(0.3)  # now facing north: +y
+        turned = emu.wait_sim(0.5).position_enu_m
+        mc.stop()
+        mc.land()
+    assert abs(up[2] - 0.5) < 0.1, up
+    assert abs(forward[0] - up[0] - 0.5) < 0.15 and abs(forward[1] - up[1]) < 0.15, (up, forward)
+    assert abs(turned[1] - forward[1] - 0.3) < 0.15 and abs(turned[0] - forward[0]) < 0.15, (forward, turned)
