@@ -15,6 +15,7 @@ crtp_commander_high_level.c, supervisor.c (../shared/reference/crtp_cflib_emulat
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 
@@ -68,6 +69,28 @@ class Hover:
 
 
 @dataclass(frozen=True)
+class ZDistance:
+    """Generic type 9: roll and pitch (deg, as sent), yaw rate (deg/s, counter-clockwise positive), height (m)."""
+
+    roll_deg: float
+    pitch_deg: float
+    yaw_rate_dps: float
+    z_m: float
+
+
+@dataclass(frozen=True)
+class FullState:
+    """Generic type 6: position (m), velocity (m/s), acceleration (m/s^2) on the wire in mm units, the
+    attitude decompressed (w, x, y, z), body rates (rad/s; milliradians/s on the wire)."""
+
+    position_m: tuple[float, float, float]
+    velocity_mps: tuple[float, float, float]
+    acceleration_mps2: tuple[float, float, float]
+    attitude_wxyz: tuple[float, float, float, float]
+    rates_radps: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
 class NotifySetpointsStop:
     """Meta (7:1) type 0: the low-level setpoints end; the high-level commander may take over."""
 
@@ -116,9 +139,11 @@ class Unsupported:
 
 
 # generic setpoint types (crtp_commander_generic.c packetType)
-GENERIC_STOP, GENERIC_POSITION, GENERIC_VELOCITY_WORLD, GENERIC_HOVER = 0, 7, 8, 10
+GENERIC_STOP, GENERIC_FULL_STATE, GENERIC_POSITION, GENERIC_VELOCITY_WORLD = 0, 6, 7, 8
+GENERIC_Z_DISTANCE, GENERIC_HOVER = 9, 10
 GENERIC_NAMES = {1: "velocity world (legacy)", 2: "z-distance (legacy)", 3: "cppm emulation", 4: "altitude hold",
-                 5: "hover (legacy)", 6: "full state", 9: "z-distance", 11: "manual"}
+                 5: "hover (legacy)", 11: "manual"}
+QUAT_MAGNITUDE_BITS = 9  # quatcompress.h: per smaller component, a sign bit and a 9-bit magnitude
 # high-level commander commands (high_level_commander.py)
 HL_STOP, HL_GO_TO, HL_TAKEOFF_2, HL_LAND_2, HL_GO_TO_2 = 3, 4, 7, 8, 12
 # supervisor commands (supervisor.py)
@@ -159,7 +184,15 @@ def _generic(channel: int, data: bytes):
         return Malformed(f"generic setpoint channel {channel} unknown")
     if kind == GENERIC_STOP:
         return StopSetpoint() if not body else Malformed("stop setpoint with a payload")
-    records = {GENERIC_POSITION: PositionSetpoint, GENERIC_VELOCITY_WORLD: VelocityWorld, GENERIC_HOVER: Hover}
+    if kind == GENERIC_FULL_STATE:
+        values = _unpack("<hhhhhhhhhIhhh", body, "full-state setpoint")
+        if isinstance(values, Malformed):
+            return values
+        mm = [v / 1000.0 for v in values[:9]]
+        return FullState(tuple(mm[0:3]), tuple(mm[3:6]), tuple(mm[6:9]), decompress_quaternion(values[9]),
+                         tuple(v / 1000.0 for v in values[10:13]))
+    records = {GENERIC_POSITION: PositionSetpoint, GENERIC_VELOCITY_WORLD: VelocityWorld, GENERIC_HOVER: Hover,
+               GENERIC_Z_DISTANCE: ZDistance}
     if kind in records:
         values = _unpack("<ffff", body, f"generic setpoint type {kind}")
         return values if isinstance(values, Malformed) else records[kind](*values)
@@ -227,3 +260,22 @@ def _supervisor(channel: int, data: bytes):
             return SupervisorRequest("arm" if data[1] else "disarm")
         return SupervisorRequest(SUPERVISOR_COMMANDS[cmd])
     return Malformed(f"supervisor channel {channel} command {cmd} unknown")
+
+
+def decompress_quaternion(packed: int) -> tuple[float, float, float, float]:
+    """quatcompress.h quatdecompress: bits 31-30 name the largest of (x, y, z, w); the other three, from w
+    down, are a 9-bit magnitude scaled by 1/sqrt(2) and a sign bit; the largest is what makes |q| = 1.
+    Returns (w, x, y, z)."""
+    mask = (1 << QUAT_MAGNITUDE_BITS) - 1
+    largest = packed >> 30
+    q = [0.0, 0.0, 0.0, 0.0]  # x, y, z, w as on the wire
+    sum_squares = 0.0
+    for i in (3, 2, 1, 0):
+        if i == largest:
+            continue
+        magnitude, negative = packed & mask, (packed >> QUAT_MAGNITUDE_BITS) & 1
+        packed >>= QUAT_MAGNITUDE_BITS + 1
+        q[i] = (-1.0 if negative else 1.0) * math.sqrt(0.5) * magnitude / mask
+        sum_squares += q[i] * q[i]
+    q[largest] = math.sqrt(max(0.0, 1.0 - sum_squares))
+    return (q[3], q[0], q[1], q[2])

@@ -70,6 +70,7 @@ POSITION_MODES = (MODE_ABS, MODE_ABS, MODE_ABS, MODE_DISABLE, MODE_DISABLE, MODE
 # crtp_commander_generic.c velocityDecoder and hoverDecoder: yaw as a rate
 VELOCITY_WORLD_MODES = (MODE_VELOCITY, MODE_VELOCITY, MODE_VELOCITY, MODE_DISABLE, MODE_DISABLE, MODE_VELOCITY)
 HOVER_MODES = (MODE_VELOCITY, MODE_VELOCITY, MODE_ABS, MODE_DISABLE, MODE_DISABLE, MODE_VELOCITY)
+Z_DISTANCE_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS, MODE_VELOCITY)
 # supervisorOverrideSetpoint on a position setpoint: x, y off, level, yaw rate 0, z kept
 LEVEL_HOLDING_Z_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS, MODE_VELOCITY)
 
@@ -254,6 +255,12 @@ class CrazyflieFirmware(Firmware):
             return False
         if isinstance(record, crtp.Rpyt):
             return self._take_rpyt(record, arrival_s)
+        if isinstance(record, crtp.FullState):
+            # the PID controller flies a full state as a position with the quaternion's yaw (controller_pid.c:
+            # x, y, z absolute, yaw from mode.quat; its velocity, acceleration and rates are not used)
+            yaw_rad = euler_zyx_of(record.attitude_wxyz)[2] if all(map(math.isfinite, record.attitude_wxyz)) \
+                else math.nan
+            record = crtp.PositionSetpoint(*record.position_m, math.degrees(yaw_rad))
         if isinstance(record, crtp.PositionSetpoint):
             values = (record.x_m, record.y_m, record.z_m, record.yaw_deg)
             target = PositionTarget(arrival_s, values[:3], (0.0, 0.0, 0.0), math.radians(record.yaw_deg))
@@ -263,6 +270,8 @@ class CrazyflieFirmware(Firmware):
             return False
         if isinstance(record, (crtp.VelocityWorld, crtp.Hover)):
             return self._take_velocity(record, arrival_s)
+        if isinstance(record, crtp.ZDistance):
+            return self._take_z_distance(record, arrival_s)
         if isinstance(record, crtp.StopSetpoint):
             self.low_level_active = True
             self._stop_motors(arrival_s)
@@ -315,6 +324,21 @@ class CrazyflieFirmware(Firmware):
         self._sp_position = (self.position.p[0], self.position.p[1], height)  # what a watchdog level-out holds
         self._sp_pid = Setpoint(modes, (0.0, 0.0, 0.0), (0.0, 0.0, sp.yaw_rate_dps), position_m=self._sp_position,
                                 velocity_mps=velocity, velocity_body=hover)
+        self._sp_arrival_s = arrival_s
+        self.low_level_active = True
+        self.mode = VehicleMode.POSITION
+        return True
+
+    def _take_z_distance(self, sp, arrival_s: float) -> bool:
+        """Roll and pitch absolute, yaw rate, height absolute (zDistanceDecoder): needs a height estimate."""
+        values = tuple(vars(sp).values())
+        if not all(math.isfinite(v) for v in values) or not self.position.valid:
+            self.rejected_commands += 1
+            return False
+        self._auto_arm(arrival_s, values)
+        self._sp_position = (self.position.p[0], self.position.p[1], sp.z_m)
+        self._sp_pid = Setpoint(Z_DISTANCE_MODES, (sp.roll_deg, sp.pitch_deg, 0.0), (0.0, 0.0, sp.yaw_rate_dps),
+                                position_m=self._sp_position)
         self._sp_arrival_s = arrival_s
         self.low_level_active = True
         self.mode = VehicleMode.POSITION

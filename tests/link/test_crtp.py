@@ -71,7 +71,7 @@ def test_commander_packets_decode_to_what_cflib_sent():
     assert vars(cf.last()) == pytest.approx(vars(setpoints.Hover(0.25, -0.5, 30.0, 0.4)))  # float32 on the wire
     commander.send_velocity_world_setpoint(0.5, 0.25, -0.25, -10.0)
     assert vars(cf.last()) == vars(setpoints.VelocityWorld(0.5, 0.25, -0.25, -10.0))  # exact in float32
-    commander.send_zdistance_setpoint(1.0, 2.0, 3.0, 0.5)
+    commander.send_setpoint_manual(1.0, 2.0, 3.0, 50.0, False)
     assert isinstance(cf.last(), setpoints.Unsupported)  # decoded as valid, not flown (counted)
 
 
@@ -135,3 +135,19 @@ def test_toc_items_parse_in_cflibs_own_elements():
     assert ParamTocElement(0, param.item(0)[3:]).get_readable_access() == "RW"
     changed = Toc("log", [TocEntry("stateEstimate", "y", "float"), TocEntry("motor", "m1", "uint16_t")])
     assert changed.crc != log.crc  # a changed TOC invalidates cflib's cache (keyed by the CRC)
+
+
+def test_full_state_and_z_distance_decode_as_the_firmware_does():
+    cf = CapturingCrazyflie()
+    commander = Commander(cf)
+    q = (0.0, 0.0, math.sin(0.4), math.cos(0.4))  # x, y, z, w: yaw 0.8 rad
+    commander.send_full_state_setpoint((0.1, -0.2, 0.75), (0.3, 0.0, 0.0), (0.0, 0.0, 1.0), q, 0.0, 0.0, 0.5)
+    full = cf.last()
+    assert full.position_m == (0.1, -0.2, 0.75) and full.velocity_mps == (0.3, 0.0, 0.0)
+    assert full.acceleration_mps2 == (0.0, 0.0, 1.0) and full.rates_radps == (0.0, 0.0, 0.5)  # mrad/s on the wire
+    w, x, y, z = full.attitude_wxyz
+    assert math.isclose(math.hypot(w, x, y, z), 1.0)
+    assert abs(2.0 * math.atan2(z, w) - 0.8) < 0.01  # 9-bit components: a few mrad
+    commander.send_zdistance_setpoint(3.0, -2.0, 20.0, 0.4)
+    assert vars(cf.last()) == pytest.approx(vars(setpoints.ZDistance(3.0, -2.0, 20.0, 0.4)))
+    assert setpoints.decompress_quaternion(0xC0000000) == (1.0, 0.0, 0.0, 0.0)  # [0, 0, 0, 1] (cflib docs)

@@ -117,3 +117,23 @@ def test_high_level_takeoff_needs_the_enable_parameter_and_a_position_then_reach
     _with_position_fixes(sim, 0.5)
     # the plan flies again: its end, above where the takeoff started (the estimate then)
     assert fw.mode.name == "POSITION" and fw._sp_position[2] == 0.6 and math.hypot(*fw._sp_position[:2]) < 0.01
+
+
+def test_full_state_flies_its_position_and_the_quaternions_yaw_and_z_distance_its_height():
+    from link.crtp.setpoints import FullState, Hover, ZDistance
+    from model.frames import yaw_of
+
+    sim = _sim()
+    _with_position_fixes(sim, 0.3)
+    yaw = 0.5
+    state = FullState((0.2, -0.1, 0.5), (0.0,) * 3, (0.0,) * 3, (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)),
+                      (0.0,) * 3)
+    _with_position_fixes(sim, 4.0, state)
+    truth = sim.truth
+    assert math.dist(truth.position_enu_m, (0.2, -0.1, 0.5)) < 0.1, truth.position_enu_m
+    assert abs(yaw_of(truth.attitude_wxyz) - yaw) < 0.05
+    _with_position_fixes(sim, 3.0, ZDistance(0.0, 0.0, 0.0, 0.8))
+    assert abs(sim.truth.position_enu_m[2] - 0.8) < 0.1
+    _with_position_fixes(sim, 2.0, Hover(0.3, 0.0, 0.0, 0.8))  # 0.3 m/s forward in the yaw frame
+    v = sim.truth.velocity_enu_mps
+    assert math.hypot(v[0] - 0.3 * math.cos(yaw), v[1] - 0.3 * math.sin(yaw)) < 0.1, v
