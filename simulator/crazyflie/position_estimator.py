@@ -9,7 +9,8 @@ steady-state filter whose gain K each fix applies); `reset()` (kalman.resetEstim
 
 Predict: a = R(q) f - g e_z; v += a dt; p += v dt. Correct, for a fix z at sample time t_z against the
 estimate then (its history): e = z - p(t_z); p += L_p dt_fix e; v += L_v dt_fix e, with w = sqrt(s_a / (s_p
-sqrt(dt_fix))), L_p = sqrt(2) w, L_v = w^2 (simulator/params/crazyflie.toml [position_estimator]).
+sqrt(dt_fix))), L_p = sqrt(2) w, L_v = w^2 per axis, s_a the firmware Kalman filter's acceleration process
+noise as a density (simulator/params/crazyflie.toml [position_estimator]).
 """
 
 from __future__ import annotations
@@ -21,9 +22,10 @@ from simulator.crazyflie.history import TimeHistory
 
 
 class PositionEstimator:
-    def __init__(self, accel_density: float, pos_std_m: float, gravity_mps2: float,
+    def __init__(self, accel_density, pos_std_m: float, gravity_mps2: float,
                  initial_std_m: tuple[float, float, float] = (0.0, 0.0, 0.0)):
-        self.accel_density = accel_density
+        """accel_density: s_a (m/s^2/sqrt(Hz)), one for all axes or one per axis."""
+        self.accel_density = tuple(accel_density) if hasattr(accel_density, "__len__") else (accel_density,) * 3
         self.pos_std_m = pos_std_m
         self.gravity = gravity_mps2
         self.initial_variance_m2 = tuple(s * s for s in initial_std_m)
@@ -60,10 +62,12 @@ class PositionEstimator:
         if dt_fix <= 0.0:
             return
         then = self._history.at(time_s) or tuple(self.p)
-        w = math.sqrt(self.accel_density / (self.pos_std_m * math.sqrt(dt_fix)))
-        gain_p, gain_v = math.sqrt(2.0) * w * dt_fix, w * w * dt_fix
-        self.variance_m2 = (gain_p * self.pos_std_m**2,) * 3  # the posterior P = K R of the filter of that gain
+        variances = []
         for k in range(3):
+            w = math.sqrt(self.accel_density[k] / (self.pos_std_m * math.sqrt(dt_fix)))
+            gain_p, gain_v = math.sqrt(2.0) * w * dt_fix, w * w * dt_fix
+            variances.append(gain_p * self.pos_std_m**2)  # the posterior P = K R of the filter of that gain
             e = position_enu_m[k] - then[k]
             self.p[k] += gain_p * e
             self.v[k] += gain_v * e
+        self.variance_m2 = tuple(variances)

@@ -99,6 +99,7 @@ class CrazyflieParams:
     position_rate_hz: float
     ext_pos_std_m: float
     initial_position_std_m: tuple[float, float, float]
+    position_process_density: tuple[float, float, float]  # m/s^2/sqrt(Hz), per axis
     source: str
 
 
@@ -138,8 +139,16 @@ def load_crazyflie_params(name_or_path: str | Path = "crazyflie") -> CrazyfliePa
         ext_pos_std_m=p.table("position_estimator").number("pos_std_m", minimum=1e-9),
         initial_position_std_m=(p.table("position_estimator").number("initial_std_xy_m", minimum=0.0),) * 2
         + (p.table("position_estimator").number("initial_std_z_m", minimum=0.0),),
+        position_process_density=_process_density(p.table("position_estimator")),
         source=p.source,
     )
+
+
+def _process_density(t) -> tuple[float, float, float]:
+    """The Kalman filter's acceleration process noise as a density per axis: procNoiseAcc sqrt(1 / rate)."""
+    root_dt = math.sqrt(1.0 / t.number("predict_rate_hz", minimum=1e-9))
+    xy, z = t.number("process_noise_acc_xy_mps2", minimum=0.0), t.number("process_noise_acc_z_mps2", minimum=0.0)
+    return (xy * root_dt, xy * root_dt, z * root_dt)
 
 
 def _position_gains(t) -> dict:
@@ -179,7 +188,7 @@ class CrazyflieFirmware(Firmware):
         self.controller = ControllerPid(AttitudeController(cf.pid_attitude, cf.pid_rate, dt), dt,
                                         PositionController(cf.position_gains, 1.0 / cf.position_rate_hz),
                                         position_every=max(1, round(cf.attitude_rate_hz / cf.position_rate_hz)))
-        self.position = PositionEstimator(vehicle.imu.accel_noise_density, cf.ext_pos_std_m, G_MPS2,
+        self.position = PositionEstimator(cf.position_process_density, cf.ext_pos_std_m, G_MPS2,
                                           cf.initial_position_std_m)
         self._sp_position = (0.0, 0.0, 0.0)
         self._sp_yaw_deg = 0.0
