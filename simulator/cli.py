@@ -152,11 +152,11 @@ def _crtp_settings(args: argparse.Namespace) -> dict:
     """CRTP on by default where it can run (realtime, faithful firmware), on the CrazySim port."""
     if args.crtp_port == "off":
         return {"crtp_base_port": None}
+    settings = {"crtp_base_port": args.crtp_port, "crtp_host": CRTP_HOST, "position_deck": args.position_deck}
     if args.crtp_port is None:
         default_on = args.clock == "realtime" and args.firmware == "crazyflie"
-        return {"crtp_base_port": DEFAULT_CRTP_PORT if default_on else None, "crtp_required": False,
-                "crtp_host": CRTP_HOST, "position_deck": args.position_deck}
-    return {"crtp_base_port": args.crtp_port, "crtp_host": CRTP_HOST, "position_deck": args.position_deck}
+        settings.update(crtp_base_port=DEFAULT_CRTP_PORT if default_on else None, crtp_required=False)
+    return settings
 
 
 def _zenoh_options(args: argparse.Namespace) -> dict:

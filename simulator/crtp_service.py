@@ -188,9 +188,9 @@ class CrtpService:
             return self._log(channel, data, t_s)
         if port == Port.PARAM:
             return self._param(channel, data)
-        if port == Port.SUPERVISOR and channel == 0 and data[:1] == bytes((setpoints.SUPERVISOR_STATE,)):
-            return [(0, bytes((0x80 | setpoints.SUPERVISOR_STATE,)) + struct.pack("<H", self._state_bits(t_s)))]
         record = setpoints.decode_command(packet)
+        if record == setpoints.SupervisorRequest("state"):  # answered here: the firmware has nothing to do
+            return [(0, bytes((0x80 | setpoints.SUPERVISOR_STATE,)) + struct.pack("<H", self._state_bits(t_s)))]
         if record is None:
             return self._unknown(f"port {port}")
         if isinstance(record, setpoints.Malformed):

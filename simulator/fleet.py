@@ -20,7 +20,6 @@ that claims the ground station's system id cannot be told from its own.
 
 from __future__ import annotations
 
-import heapq
 import logging
 import math
 from collections import defaultdict, deque
@@ -132,8 +131,7 @@ class VehicleNode:
         self.clock: Transport | None = None  # tx clock, rx clock_ack
         self.crtp: CrtpService | None = None  # cflib clients (config.crtp_base_port)
         self.crtp_link: Transport | None = None
-        self._deck_fixes: list[tuple[float, int, ExternalPose]] = []  # positioning deck fixes by release time
-        self._deck_seq = 0
+        self._deck_fixes: deque[tuple[float, ExternalPose]] = deque()  # (release time, fix): outputs come in order
         self._ground_extpose_s = -math.inf  # when the ground station's last extpose arrived
         self.position_deck = config.position_deck and config.crtp_base_port is not None
         if config.profile:
@@ -270,16 +268,14 @@ class VehicleNode:
         self._finish_step(t, step_no)
 
     def _queue_deck_fix(self, pose, release_s: float) -> None:
-        fix = ExternalPose(pose.time_s, pose.position_enu_m, pose.attitude_wxyz)
-        heapq.heappush(self._deck_fixes, (release_s, self._deck_seq, fix))
-        self._deck_seq += 1
+        self._deck_fixes.append((release_s, ExternalPose(pose.time_s, pose.position_enu_m, pose.attitude_wxyz)))
 
     def _feed_deck(self, t: float) -> None:
         """The positioning deck's fixes released by t into the onboard estimator, unless the ground station
         streamed extpose within the last DECK_YIELD_S (then its poses are the vehicle's position source)."""
         fixes = self._deck_fixes
         while fixes and fixes[0][0] <= t:
-            _, _, fix = heapq.heappop(fixes)
+            _, fix = fixes.popleft()
             if t - self._ground_extpose_s > DECK_YIELD_S:
                 self.sim.firmware.take_position_fix(fix, t)
 

@@ -319,35 +319,31 @@ class CrazyflieFirmware(Firmware):
 
     def _take_velocity(self, sp, arrival_s: float) -> bool:
         """Velocity world (x, y, z velocity) or hover (x, y velocity in the yaw frame, z absolute), yaw rate:
-        flown by the position controller's velocity PIDs; refused without a position estimate, as a
-        position setpoint is (the velocity PIDs fly on the estimate's velocity)."""
-        values = tuple(vars(sp).values())
-        if not all(math.isfinite(v) for v in values) or not self.position.valid:
-            self.rejected_commands += 1
-            return False
-        self._auto_arm(arrival_s, values)
+        flown by the position controller's velocity PIDs."""
         hover = isinstance(sp, crtp.Hover)
-        modes = HOVER_MODES if hover else VELOCITY_WORLD_MODES
-        velocity = (sp.vx_mps, sp.vy_mps, 0.0 if hover else sp.vz_mps)
-        height = sp.z_m if hover else self.position.p[2]
-        self._sp_position = (self.position.p[0], self.position.p[1], height)  # what a watchdog level-out holds
-        self._sp_pid = Setpoint(modes, (0.0, 0.0, 0.0), (0.0, 0.0, sp.yaw_rate_dps), position_m=self._sp_position,
-                                velocity_mps=velocity, velocity_body=hover)
-        self._sp_arrival_s = arrival_s
-        self.low_level_active = True
-        self.mode = VehicleMode.POSITION
-        return True
+        return self._take_pid_setpoint(sp, arrival_s, HOVER_MODES if hover else VELOCITY_WORLD_MODES,
+                                       sp.z_m if hover else self.position.p[2],
+                                       velocity_mps=(sp.vx_mps, sp.vy_mps, 0.0 if hover else sp.vz_mps),
+                                       velocity_body=hover)
 
     def _take_z_distance(self, sp, arrival_s: float) -> bool:
-        """Roll and pitch absolute, yaw rate, height absolute (zDistanceDecoder): needs a height estimate."""
+        """Roll and pitch absolute, yaw rate, height absolute (zDistanceDecoder)."""
+        return self._take_pid_setpoint(sp, arrival_s, Z_DISTANCE_MODES, sp.z_m,
+                                       attitude_deg=(sp.roll_deg, sp.pitch_deg, 0.0))
+
+    def _take_pid_setpoint(self, sp, arrival_s: float, modes, height_m: float, *, attitude_deg=(0.0, 0.0, 0.0),
+                           velocity_mps=(0.0, 0.0, 0.0), velocity_body: bool = False) -> bool:
+        """A setpoint with a yaw rate that the PID controller flies on the position estimate (its velocity or
+        height): refused without a position estimate, as a position setpoint is. The held position (x, y
+        where it is, height_m) is what a watchdog level-out holds."""
         values = tuple(vars(sp).values())
         if not all(math.isfinite(v) for v in values) or not self.position.valid:
             self.rejected_commands += 1
             return False
         self._auto_arm(arrival_s, values)
-        self._sp_position = (self.position.p[0], self.position.p[1], sp.z_m)
-        self._sp_pid = Setpoint(Z_DISTANCE_MODES, (sp.roll_deg, sp.pitch_deg, 0.0), (0.0, 0.0, sp.yaw_rate_dps),
-                                position_m=self._sp_position)
+        self._sp_position = (self.position.p[0], self.position.p[1], height_m)
+        self._sp_pid = Setpoint(modes, attitude_deg, (0.0, 0.0, sp.yaw_rate_dps), position_m=self._sp_position,
+                                velocity_mps=velocity_mps, velocity_body=velocity_body)
         self._sp_arrival_s = arrival_s
         self.low_level_active = True
         self.mode = VehicleMode.POSITION
@@ -366,10 +362,7 @@ class CrazyflieFirmware(Firmware):
             self.rejected_commands += 1
             return False
         if fix.attitude_wxyz is None:  # position only: the attitude estimate is left alone
-            previous = self._last_ext_time_s
-            dt = 0.0 if previous is None else min(max(arrival_s - previous, 0.0), self.cf.ext_fresh_for_s)
-            self.position.fuse(position, arrival_s, dt)
-            self._last_ext_time_s = arrival_s if previous is None else max(previous, arrival_s)
+            self._fuse_position_fix(position, arrival_s)
             return True
         self._fuse_external(ExternalPose(arrival_s, position, fix.attitude_wxyz), arrival_s)
         return True
@@ -444,22 +437,26 @@ class CrazyflieFirmware(Firmware):
             self.rejected_commands += 1
             return
         self._last_ext_arrival_s = arrival_s
-        previous = self._last_ext_time_s
-        # time since the previous fix, capped: what each fix's correction is weighted by
-        dt = 0.0 if previous is None else min(max(pose.time_s - previous, 0.0), self.cf.ext_fresh_for_s)
-        if all(math.isfinite(v) for v in pose.position_enu_m):
-            self.position.fuse(pose.position_enu_m, pose.time_s, dt)
-        if previous is None:
+        dt = self._fuse_position_fix(pose.position_enu_m, pose.time_s)
+        if dt is None:
             self.fusion.q = [float(v) for v in q_ext]
-            self._last_ext_time_s = pose.time_s
             return
-        self._last_ext_time_s = max(previous, pose.time_s)
         then = self._history.at(pose.time_s) or self.fusion.q
         # error rotation from the estimate then to the fix, in the body frame
         gain = self._gyro_density * math.sqrt(dt) / self.cf.ext_quat_std_rad
         ex, ey, ez = attitude_error(tuple(then), q_ext)
         self.fusion.rotate_body(gain * ex, gain * ey, gain * ez)
         self.external_poses += 1
+
+    def _fuse_position_fix(self, position_enu_m, time_s: float) -> float | None:
+        """A fix's position into the position estimator (when finite); the time since the previous fix,
+        capped - what each fix's correction is weighted by - or None for the first fix."""
+        previous = self._last_ext_time_s
+        dt = 0.0 if previous is None else min(max(time_s - previous, 0.0), self.cf.ext_fresh_for_s)
+        if all(math.isfinite(v) for v in position_enu_m):
+            self.position.fuse(position_enu_m, time_s, dt)
+        self._last_ext_time_s = time_s if previous is None else max(previous, time_s)
+        return None if previous is None else dt
 
     def take_imu(self, sample: ImuSample) -> None:
         self._imu_time_s = sample.time_s
