@@ -41,6 +41,7 @@ from groundstation.usercode.loader import builtin_or_user_file
 from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.base import free_loopback_port
+from link.transports.table import check_radio_link, far_end
 from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
 from model.errors import OneLineParser, UserError
 from model.options import float_in, non_negative_float, positive_float, seed, whole_number
@@ -100,6 +101,11 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
                    help="forward every mocap pose to the vehicle (MAVLink ATT_POS_MOCAP, as a mocap lab streams "
                         "extpose) for its onboard estimator (default: on, off with --firmware ideal)")
     g.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
+    g.add_argument("--radio-link", metavar="CONNECTION",
+                   help="the radio link to the vehicle (uplink and downlink) on its own transport: udpin:HOST:PORT, "
+                        "udpout:HOST:PORT, serial:DEVICE:BAUD (--clock realtime), e.g. a telemetry radio; default: "
+                        "zenoh, on the vehicle's keys. Mocap and truth stay on zenoh (the ground network). fly and "
+                        "step start their emulator on the far end (udpin <-> udpout)")
     d = p.add_argument_group("displays")
     d.add_argument("--view", action="store_true", help="show the flight live in the rerun viewer (spawned)")
     d.add_argument("--view-save", metavar="FILE.rrd", help="record the live view to a file instead (headless, CI)")
@@ -243,9 +249,12 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
     if args.mode == "position" and getattr(args, "firmware", "crazyflie") != "crazyflie":
         raise UserError("argument --mode position: needs --firmware crazyflie (the ideal vehicle has no onboard "
                         "position controller)")
+    if args.radio_link is not None:
+        check_radio_link(args.radio_link, 1, clock)  # the ground station's address is its own vehicle's
     return SessionOptions(
         track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
-        connection="zenoh", zenoh_options=zopts, prefix=args.prefix, vehicle_id=args.vehicle,
+        connection="zenoh", zenoh_options=zopts, radio_link=args.radio_link, prefix=args.prefix,
+        vehicle_id=args.vehicle,
         vehicle_model=args.vehicle_model, gains=args.gains,
         # loaded here: a bad file is one line before any process starts
         sensor_spec=load_sensor_spec(args.sensor_spec),
@@ -353,6 +362,8 @@ class EmulatorChild:
             cmd += ["--start", *(repr(float(v)) for v in start)]
         if airborne:
             cmd += ["--airborne"]
+        if args.radio_link is not None:  # the vehicle's end of the ground station's radio link
+            cmd += ["--radio-link", far_end(args.radio_link)]
         cmd += getattr(args, "emulator_extra", [])
         # stderr to a file, not a pipe: a pipe nobody reads during the flight could fill and stall the child
         self.stderr = tempfile.TemporaryFile(mode="w+")

@@ -72,6 +72,7 @@ class SessionOptions:
     clock: str = "lockstep"
     connection: str = "zenoh"
     zenoh_options: dict = field(default_factory=dict)
+    radio_link: str | None = None  # the radio's own connection string (udp, serial...); None: `connection`
     prefix: str = "cfstack"
     vehicle_id: int = 1
     vehicle_model: str = "crazyflie"
@@ -114,7 +115,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
         link = VehicleLink(opts.connection, keys, ActuatorLimits.from_vehicle(vehicle),
                            clock=lambda: clock_box["clock"].now(), zenoh_options=opts.zenoh_options,
                            signing=opts.signing, tlog_path=flight_log.tlog_path,
-                           shared_clock=opts.clock == "lockstep")
+                           shared_clock=opts.clock == "lockstep", radio_link=opts.radio_link)
         try:
             if opts.clock == "lockstep":
                 clock_transport = open_transport(opts.connection, tx=keys.clock_ack, rx=keys.clock,
@@ -270,6 +271,7 @@ def _link_summary(loop: FlightLoop) -> dict:
     rtts = np.array(loop.health.rtt_s) * 1e3
     reported = loop.health.last_status is not None
     return {
+        "radio": loop.link.radio.transport.scheme,  # the transport the radio link crossed (--radio-link)
         "uplink_sent": stats.tx_frames,
         "uplink_delivered": loop.health.uplink_received if reported else None,
         "downlink_sent": stats.rx_frames + stats.rx_lost,

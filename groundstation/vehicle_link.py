@@ -1,7 +1,8 @@
 """The ground station's side of the link to one vehicle.
 
-Takes in: a connection string and zenoh options, the vehicle id and key prefix, actuator limits and
-signing, a clock for receive times, and an optional .tlog path.
+Takes in: a connection string and zenoh options (the ground network: mocap, truth), optionally a second
+one for the radio link (uplink and downlink; default: the first, on the vehicle's keys), the vehicle id and
+key prefix, actuator limits and signing, a clock for receive times, and an optional .tlog path.
 Gives out: `send(message)` on the uplink; decoded downlink and mocap messages in an inbox (`pump()`:
 everything that arrived; or, for the lockstep clock, `fetch()` samples and `deliver(counts)` exactly a
 tick's worth of them); the same tick's (simulation-only) truth messages from `take_truth()`, decoded
@@ -34,15 +35,18 @@ class Inbox:
 class VehicleLink:
     def __init__(self, connection: str, keys: VehicleKeys, limits: ActuatorLimits, clock: Callable[[], float],
                  *, zenoh_options: dict | None = None, signing=None, tlog_path=None, with_truth: bool = True,
-                 shared_clock: bool = False):
+                 shared_clock: bool = False, radio_link: str | None = None):
         """`shared_clock`: both ends stamp with the same clock (lockstep simulation time), so one-way frame
-        ages are measured directly instead of through TIMESYNC's symmetric-path offset."""
+        ages are measured directly instead of through TIMESYNC's symmetric-path offset. `radio_link`: the
+        radio's own connection string (udp, serial, ...: this vehicle's address), None: `connection`."""
         opts = zenoh_options or {}
+        radio = connection if radio_link is None else radio_link
+        radio_opts = opts if radio.startswith("zenoh") else {}
         self.keys = keys
         self.clock = clock
         self.tlog = TlogWriter(tlog_path, buffered=True) if tlog_path else None
         codec = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits, signing=signing)
-        self.radio = Endpoint(open_transport(connection, tx=keys.uplink, rx=keys.downlink, **opts), codec,
+        self.radio = Endpoint(open_transport(radio, tx=keys.uplink, rx=keys.downlink, **radio_opts), codec,
                               FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog,
                               shared_clock=shared_clock)
         ground = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits)

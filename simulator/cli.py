@@ -65,6 +65,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "simulation time advances only as the ground stations acknowledge its ticks")
     p.add_argument("--seed", type=seed, default=1, help="seed of every random source (>= 0)")
     p.add_argument("--id", dest="prefix", default=DEFAULT_PREFIX, help="zenoh key prefix")
+    p.add_argument("--radio-link", metavar="CONNECTION",
+                   help="the radio link (each vehicle's uplink and downlink) on its own transport: udpin:HOST:PORT or "
+                        "udpout:HOST:PORT (vehicle N on PORT+N-1), serial:DEVICE:BAUD (one vehicle, --clock "
+                        "realtime); default: zenoh, on each vehicle's keys. Mocap, truth and the lockstep clock stay "
+                        "on zenoh (the ground network)")
     p.add_argument("--physics-rate", type=positive_float, default=1000.0, help="physics steps per second")
     p.add_argument("--firmware", choices=("crazyflie", "ideal"), default="crazyflie",
                    help="the onboard side: crazyflie (default: the Crazyflie's PID stabilizer on its own estimate, "
@@ -129,7 +134,8 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         mocap_room=load_mocap_room(args.mocap_room),
         radio=load_radio_profile(args.radio), world=world, vehicles=args.vehicles, seed=args.seed,
         clock=args.clock, physics_rate_hz=args.physics_rate, prefix=args.prefix,
-        connection="zenoh", zenoh_options=_zenoh_options(args), start_positions_enu_m=starts,
+        connection="zenoh", zenoh_options=_zenoh_options(args), radio_link=args.radio_link,
+        start_positions_enu_m=starts,
         airborne=args.airborne, firmware=args.firmware, variation=load_variation(args.vehicle_draw),
         ideal_parts=tuple(args.ideal_parts),
         signing=signing_from_args(args), duration_s=args.duration,
@@ -183,8 +189,10 @@ def emulator_command(argv: list[str]) -> int:
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
     with emulator:
-        log.info("emulator up: %d vehicle(s), %s clock, radio %s, seed %d, keys %s/vehicle/1..%d/..., "
-                 "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, config.seed,
+        radio_link = ("on the keys" if config.radio_link is None
+                      else f"on {config.radio_link}" + (" (vehicle N: PORT+N-1)" if config.vehicles > 1 else ""))
+        log.info("emulator up: %d vehicle(s), %s clock, radio %s %s, seed %d, keys %s/vehicle/1..%d/..., "
+                 "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, radio_link, config.seed,
                  config.prefix, config.vehicles, emulator.lockstep.lookahead_horizon_s() * 1e3)
         emulator.run()
     if args.radio_ledger:

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from link.keys import MAX_VEHICLE_ID
+from link.transports.table import check_radio_link
 from model.errors import UserError
 from model.radio import RadioProfile
 from model.vehicle import MocapRoom, Vehicle
@@ -34,6 +35,10 @@ class EmulatorConfig:
     prefix: str = "cfstack"
     connection: str = "zenoh"
     zenoh_options: dict = field(default_factory=dict)
+    # the radio link (each vehicle's uplink and downlink, after its simulated radio) on its own connection
+    # string, e.g. udpin:127.0.0.1:14560 (vehicle N on PORT+N-1) or serial:/dev/pts/3:57600; None: on
+    # `connection` with the vehicle's keys. Mocap, truth and the lockstep clock stay on `connection`.
+    radio_link: str | None = None
     start_positions_enu_m: list[tuple[float, float, float]] | None = None
     airborne: bool = False
     # the onboard side, "ideal" or "crazyflie" (simulator.vehicle_sim.make_firmware; the CLI default is crazyflie)
@@ -80,6 +85,8 @@ class EmulatorConfig:
             if self.clock != "realtime" or self.firmware != "crazyflie":
                 raise UserError("crtp: cflib clients are served over UDP with --clock realtime and --firmware "
                                 "crazyflie (turn it off with --crtp-port off)")
+        if self.radio_link is not None:
+            check_radio_link(self.radio_link, self.vehicles, self.clock)
         starts = self.start_positions_enu_m
         if starts is not None and len(starts) != self.vehicles:
             raise UserError(f"{len(starts)} start positions given for {self.vehicles} vehicle(s)")
@@ -87,3 +94,4 @@ class EmulatorConfig:
             outage.check("radio cut")
         for outage in self.mocap_cuts:
             outage.check("mocap cut")
+

@@ -31,6 +31,7 @@ from link.mavlink.codec import IFLAG_SIGNED, MAGIC_V2, MIN_FRAME_LEN, ActuatorLi
 from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
 from link.messages import ExternalPose, RadioStatus
 from link.transports import Transport, open_transport
+from link.transports.table import for_vehicle
 from model.errors import UserError
 from model.world import World
 from simulator.crtp_service import CrtpService
@@ -140,8 +141,10 @@ class VehicleNode:
     # --- transports -----------------------------------------------------------------------------
     def open(self, config: EmulatorConfig) -> None:
         opts = config.zenoh_options if config.connection.startswith("zenoh") else {}
+        radio = config.connection if config.radio_link is None else for_vehicle(config.radio_link, self.vehicle_id)
+        radio_opts = config.zenoh_options if radio.startswith("zenoh") else {}
         try:
-            self.link = open_transport(config.connection, tx=self.keys.downlink, rx=self.keys.uplink, **opts)
+            self.link = open_transport(radio, tx=self.keys.downlink, rx=self.keys.uplink, **radio_opts)
             mocap = open_transport(config.connection, tx=self.keys.mocap, **opts)
             truth = open_transport(config.connection, tx=self.keys.truth, **opts)
             self.outbox.senders = [self.link, mocap, truth]

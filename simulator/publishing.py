@@ -52,8 +52,10 @@ class Outbox:
         for channel, batch in enumerate(batches):
             if batch:
                 for sample in pack_samples(batch):
-                    self.senders[channel].send(sample)
-                    self.published[channel] += 1
+                    # counted only when the medium took it: a udpin radio link has no peer to send to until
+                    # the ground station's first datagram, and a tick must not announce what never left
+                    if self.senders[channel].send(sample):
+                        self.published[channel] += 1
 
     def tick_message(self, tick: int, time_ns: int) -> ClockTick:
         return ClockTick(tick, time_ns, *self.published)

@@ -23,6 +23,11 @@ SCHEMES: dict[str, str] = {
     "serial": "link.transports.serial_stream:SerialTransport",
     "mem": "link.transports.mem:MemTransport",
 }
+# Schemes that route by channel name (one address carries every channel); the others are point-to-point:
+# the address is the channel, so each vehicle needs its own.
+KEYED_SCHEMES = frozenset({"zenoh", "mem"})
+# Schemes whose receive() hands over whole frames, one sample per send (serial gives byte chunks).
+DATAGRAM_SCHEMES = frozenset({"zenoh", "mem", "udpin", "udpout"})
 
 
 def parse_connection(connection: str) -> tuple[str, str]:
@@ -35,6 +40,49 @@ def parse_connection(connection: str) -> tuple[str, str]:
         raise UserError(f"unknown transport scheme '{scheme}' in '{connection}' "
                         f"(one of: {', '.join(sorted(SCHEMES))})")
     return scheme, address
+
+
+def for_vehicle(connection: str, vehicle_id: int) -> str:
+    """The connection string of vehicle `vehicle_id`'s own link, from the one given for the fleet: keyed
+    schemes carry every vehicle on one address (the keys tell them apart); UDP gives vehicle N the port
+    PORT+N-1 (CrazySim's and PX4 SITL's convention for many vehicles); a serial device is one vehicle's."""
+    scheme, address = parse_connection(connection)
+    if scheme in KEYED_SCHEMES or vehicle_id == 1:
+        return connection
+    if scheme in ("udpin", "udpout"):
+        host, sep, port_text = address.rpartition(":")
+        if sep and port_text.isdigit():
+            port = int(port_text) + vehicle_id - 1
+            if port > 65535:
+                raise UserError(f"'{connection}': no UDP port left for vehicle {vehicle_id} (PORT+{vehicle_id - 1} "
+                                f"> 65535)")
+            return f"{scheme}:{host}:{port}"
+        return connection  # malformed: the transport names the problem when it opens
+    raise UserError(f"'{connection}': a {scheme} link carries one vehicle, not vehicle {vehicle_id} "
+                    "(use udpin/udpout or zenoh for a fleet)")
+
+
+def far_end(connection: str) -> str:
+    """The connection string the other end of a link opens: udpin and udpout swap on the same address, a
+    keyed scheme is the same string; a serial device has no far end this machine can name (UserError)."""
+    scheme, address = parse_connection(connection)
+    if scheme in KEYED_SCHEMES:
+        return connection
+    if scheme in ("udpin", "udpout"):
+        return f"{'udpout' if scheme == 'udpin' else 'udpin'}:{address}"
+    raise UserError(f"'{connection}': the far end of a {scheme} line is another device; start `cfstack emulator "
+                    "--radio-link ...` on it yourself and connect to it")
+
+
+def check_radio_link(connection: str, vehicles: int, clock: str) -> None:
+    """One-line UserError for a radio link no emulator can run on: an unknown scheme, a point-to-point
+    address that cannot carry the fleet, or a byte stream under the lockstep clock (whose ticks count the
+    samples of each channel: a serial line delivers bytes cut anywhere, so nothing can count them)."""
+    scheme, _ = parse_connection(connection)
+    for_vehicle(connection, vehicles)
+    if clock == "lockstep" and scheme not in DATAGRAM_SCHEMES:
+        raise UserError(f"radio link '{connection}': the lockstep clock counts whole frames, and a {scheme} "
+                        "line delivers a byte stream; use --clock realtime (or a udp/zenoh radio link)")
 
 
 def transport_class(scheme: str) -> type[Transport]:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import pytest
 
 from link.transports import Transport, TransportStats, open_transport
+from link.transports.table import check_radio_link, far_end, for_vehicle
 from link.transports.zenoh_session import ZenohSettings, shared_session
 from model.errors import UserError
 
@@ -337,3 +338,36 @@ def test_our_udpout_talks_to_pymavlink_udpin(free_udp_port):
             assert _source_system(mavutil.mavlink, frame) == 255
     finally:
         tool.close()
+
+
+# --- one vehicle's link from a fleet's connection string (link.transports.table) --------------------------
+@pytest.mark.parametrize(("connection", "vehicle", "expected"), [
+    ("zenoh", 7, "zenoh"),  # keyed: the keys tell vehicles apart
+    ("mem:bus", 3, "mem:bus"),
+    ("udpin:127.0.0.1:14560", 1, "udpin:127.0.0.1:14560"),
+    ("udpin:127.0.0.1:14560", 4, "udpin:127.0.0.1:14563"),  # CrazySim / PX4 SITL: PORT+N-1
+    ("udpout:[::1]:14560", 2, "udpout:[::1]:14561"),
+    ("serial:/dev/ttyUSB0:57600", 1, "serial:/dev/ttyUSB0:57600"),
+])
+def test_each_vehicle_gets_its_own_address_on_a_point_to_point_link(connection, vehicle, expected):
+    assert for_vehicle(connection, vehicle) == expected
+
+
+@pytest.mark.parametrize(("connection", "vehicles", "clock", "named"), [
+    ("serial:/dev/ttyUSB0:57600", 2, "realtime", "carries one vehicle"),
+    ("udpin:127.0.0.1:65535", 2, "realtime", "no UDP port left"),
+    ("serial:/dev/ttyUSB0:57600", 1, "lockstep", "--clock realtime"),
+    ("tcp:127.0.0.1:5760", 1, "realtime", "unknown transport scheme 'tcp'"),
+])
+def test_a_radio_link_no_emulator_can_run_on_is_one_line(connection, vehicles, clock, named):
+    with pytest.raises(UserError, match=named) as err:
+        check_radio_link(connection, vehicles, clock)
+    assert "\n" not in str(err.value)
+
+
+def test_the_far_end_swaps_udpin_and_udpout_and_has_none_for_a_device():
+    assert far_end("udpin:127.0.0.1:14560") == "udpout:127.0.0.1:14560"
+    assert far_end("udpout:127.0.0.1:14560") == "udpin:127.0.0.1:14560"
+    assert far_end("zenoh") == "zenoh"
+    with pytest.raises(UserError, match="another device"):
+        far_end("serial:/dev/ttyUSB0:57600")
