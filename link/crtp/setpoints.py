@@ -79,6 +79,42 @@ class ZDistance:
 
 
 @dataclass(frozen=True)
+class Manual:
+    """Generic type 11 (`<fffHB`): roll and pitch (deg, or deg/s with `rate`; pitch as sent: cflib negates
+    it), yaw rate (deg/s, counter-clockwise positive), thrust (PWM units, no lock, no clamps)."""
+
+    roll: float
+    pitch: float
+    yaw_rate_dps: float
+    thrust: int
+    rate: bool
+
+
+@dataclass(frozen=True)
+class CppmEmulation:
+    """Generic type 3: RC channels in microseconds (1000..2000, midpoint 1500) and up to 10 auxiliary ones;
+    aux 0 below 1500 turns self-levelling off (roll and pitch then command rates)."""
+
+    roll_us: int
+    pitch_us: int
+    yaw_us: int
+    thrust_us: int
+    aux_us: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class AltitudeHold:
+    """Generic type 4: roll and pitch (the firmware's header says rad, its decoder writes them to the
+    attitude setpoint, which is in degrees: degrees is what flies), yaw rate (deg/s), vertical velocity
+    (m/s, world)."""
+
+    roll_deg: float
+    pitch_deg: float
+    yaw_rate_dps: float
+    vz_mps: float
+
+
+@dataclass(frozen=True)
 class FullState:
     """Generic type 6: position (m), velocity (m/s), acceleration (m/s^2) on the wire in mm units, the
     attitude decompressed (w, x, y, z), body rates (rad/s; milliradians/s on the wire)."""
@@ -140,9 +176,12 @@ class Unsupported:
 
 # generic setpoint types (crtp_commander_generic.c packetType)
 GENERIC_STOP, GENERIC_FULL_STATE, GENERIC_POSITION, GENERIC_VELOCITY_WORLD = 0, 6, 7, 8
-GENERIC_Z_DISTANCE, GENERIC_HOVER = 9, 10
-GENERIC_NAMES = {1: "velocity world (legacy)", 2: "z-distance (legacy)", 3: "cppm emulation", 4: "altitude hold",
-                 5: "hover (legacy)", 11: "manual"}
+GENERIC_Z_DISTANCE, GENERIC_HOVER, GENERIC_MANUAL = 9, 10, 11
+GENERIC_CPPM, GENERIC_ALTITUDE_HOLD = 3, 4
+# the legacy types (cflib sends them to firmware of protocol < 8): the same packets with the yaw rate
+# clockwise positive (legacyVelocityDecoder & co. negate it)
+GENERIC_LEGACY = {1: GENERIC_VELOCITY_WORLD, 2: GENERIC_Z_DISTANCE, 5: GENERIC_HOVER}
+CPPM_MAX_AUX_CHANNELS = 10  # MAX_AUX_RC_CHANNELS
 QUAT_MAGNITUDE_BITS = 9  # quatcompress.h: per smaller component, a sign bit and a 9-bit magnitude
 # high-level commander commands (high_level_commander.py)
 HL_STOP, HL_GO_TO, HL_TAKEOFF_2, HL_LAND_2, HL_GO_TO_2 = 3, 4, 7, 8, 12
@@ -191,14 +230,36 @@ def _generic(channel: int, data: bytes):
         mm = [v / 1000.0 for v in values[:9]]
         return FullState(tuple(mm[0:3]), tuple(mm[3:6]), tuple(mm[6:9]), decompress_quaternion(values[9]),
                          tuple(v / 1000.0 for v in values[10:13]))
+    if kind == GENERIC_MANUAL:
+        values = _unpack("<fffHB", body, "manual setpoint")
+        return values if isinstance(values, Malformed) else Manual(*values[:4], rate=values[4] != 0)
+    if kind == GENERIC_CPPM:
+        return _cppm(body)
     records = {GENERIC_POSITION: PositionSetpoint, GENERIC_VELOCITY_WORLD: VelocityWorld, GENERIC_HOVER: Hover,
-               GENERIC_Z_DISTANCE: ZDistance}
-    if kind in records:
-        values = _unpack("<ffff", body, f"generic setpoint type {kind}")
-        return values if isinstance(values, Malformed) else records[kind](*values)
-    if kind in GENERIC_NAMES:
-        return Unsupported(f"generic setpoint type {kind} ({GENERIC_NAMES[kind]})")
-    return Malformed(f"generic setpoint type {kind} unknown")
+               GENERIC_Z_DISTANCE: ZDistance, GENERIC_ALTITUDE_HOLD: AltitudeHold}
+    legacy = kind in GENERIC_LEGACY
+    record = records.get(GENERIC_LEGACY.get(kind, kind))
+    if record is None:
+        return Malformed(f"generic setpoint type {kind} unknown")
+    values = _unpack("<ffff", body, f"generic setpoint type {kind}")
+    if isinstance(values, Malformed):
+        return values
+    if legacy:
+        yaw = 3 if record is VelocityWorld else 2  # the yaw rate's place in the packet
+        values = (*values[:yaw], -values[yaw], *values[yaw + 1:])
+    return record(*values)
+
+
+def _cppm(body: bytes):
+    """cppmEmuDecoder's packet: a header byte (aux channel count, low 4 bits), four channels, the aux ones."""
+    if len(body) < 9:
+        return Malformed(f"cppm setpoint: {len(body)} bytes, expected at least 9")
+    aux = body[0] & 0x0F
+    if aux > CPPM_MAX_AUX_CHANNELS or len(body) != 9 + 2 * aux:
+        return Malformed(f"cppm setpoint: {len(body)} bytes for {aux} aux channels (expected {9 + 2 * aux}, "
+                         f"at most {CPPM_MAX_AUX_CHANNELS} aux)")
+    channels = struct.unpack(f"<{4 + aux}H", body[1:])
+    return CppmEmulation(*channels[:4], aux_us=tuple(channels[4:]))
 
 
 def _localization(channel: int, data: bytes):

@@ -71,6 +71,12 @@ POSITION_MODES = (MODE_ABS, MODE_ABS, MODE_ABS, MODE_DISABLE, MODE_DISABLE, MODE
 VELOCITY_WORLD_MODES = (MODE_VELOCITY, MODE_VELOCITY, MODE_VELOCITY, MODE_DISABLE, MODE_DISABLE, MODE_VELOCITY)
 HOVER_MODES = (MODE_VELOCITY, MODE_VELOCITY, MODE_ABS, MODE_DISABLE, MODE_DISABLE, MODE_VELOCITY)
 Z_DISTANCE_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS, MODE_VELOCITY)
+# manualDecoder and cppmEmuDecoder: roll and pitch as angles (levelled) or as rates, yaw as a rate
+RATE_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_DISABLE, MODE_VELOCITY, MODE_VELOCITY, MODE_VELOCITY)
+# altHoldDecoder: roll, pitch absolute, yaw rate, vertical velocity
+ALTITUDE_HOLD_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_VELOCITY, MODE_ABS, MODE_ABS, MODE_VELOCITY)
+CPPM_MID_US, CPPM_HALF_RANGE_US, CPPM_THRUST_LOW_US, CPPM_THRUST_RANGE_US = 1500.0, 500.0, 1000.0, 1000.0
+CPPM_LEVEL_AUX_US = 1500  # aux channel 0 below this: self-levelling off
 # supervisorOverrideSetpoint on a position setpoint: x, y off, level, yaw rate 0, z kept
 LEVEL_HOLDING_Z_MODES = (MODE_DISABLE, MODE_DISABLE, MODE_ABS, MODE_ABS, MODE_ABS, MODE_VELOCITY)
 
@@ -100,6 +106,7 @@ class CrazyflieParams:
     ext_pos_std_m: float
     initial_position_std_m: tuple[float, float, float]
     position_process_density: tuple[float, float, float]  # m/s^2/sqrt(Hz), per axis
+    cppm: dict  # [cppm_emulation]: the RC emulation's largest angles (deg) and rates (deg/s)
     source: str
 
 
@@ -140,6 +147,9 @@ def load_crazyflie_params(name_or_path: str | Path = "crazyflie") -> CrazyfliePa
         initial_position_std_m=(p.table("position_estimator").number("initial_std_xy_m", minimum=0.0),) * 2
         + (p.table("position_estimator").number("initial_std_z_m", minimum=0.0),),
         position_process_density=_process_density(p.table("position_estimator")),
+        cppm={k: p.table("cppm_emulation").number(k, minimum=0.0) for k in (
+            "roll_max_angle_deg", "pitch_max_angle_deg", "roll_max_rate_dps", "pitch_max_rate_dps",
+            "yaw_max_rate_dps")},
         source=p.source,
     )
 
@@ -281,6 +291,14 @@ class CrazyflieFirmware(Firmware):
             return self._take_velocity(record, arrival_s)
         if isinstance(record, crtp.ZDistance):
             return self._take_z_distance(record, arrival_s)
+        if isinstance(record, crtp.AltitudeHold):
+            return self._take_pid_setpoint(record, arrival_s, ALTITUDE_HOLD_MODES, self.position.p[2],
+                                           attitude_deg=(record.roll_deg, record.pitch_deg, 0.0),
+                                           velocity_mps=(0.0, 0.0, record.vz_mps))
+        if isinstance(record, crtp.Manual):
+            return self._take_manual(record, arrival_s)
+        if isinstance(record, crtp.CppmEmulation):
+            return self._take_cppm(record, arrival_s)
         if isinstance(record, crtp.StopSetpoint):
             self.low_level_active = True
             self._stop_motors(arrival_s)
@@ -314,6 +332,42 @@ class CrazyflieFirmware(Firmware):
         self._sp_arrival_s = arrival_s
         self._sp_pid = setpoint
         self._sp_thrust_n = setpoint.thrust_pwm / self._pwm_per_n  # what the watchdog's level-out keeps
+        self.mode = VehicleMode.ATTITUDE
+        return True
+
+    def _take_manual(self, sp: crtp.Manual, arrival_s: float) -> bool:
+        """manualDecoder: roll and pitch as angles or (rate) as rates, yaw rate, thrust as sent (the generic
+        setpoints have no thrust lock and no clamps: the power distribution caps it)."""
+        roll_pitch = (sp.roll, sp.pitch, 0.0)
+        modes, angles, rates = ((RATE_MODES, (0.0, 0.0, 0.0), roll_pitch) if sp.rate
+                                else (LEVEL_MODES, roll_pitch, (0.0, 0.0, 0.0)))
+        return self._take_attitude_setpoint(arrival_s, Setpoint(modes, angles, (*rates[:2], sp.yaw_rate_dps),
+                                                                float(sp.thrust)))
+
+    def _take_cppm(self, sp: crtp.CppmEmulation, arrival_s: float) -> bool:
+        """cppmEmuDecoder: RC channels around 1500 us onto angles (self-levelling, by default) or rates, each
+        inverted, the yaw rate inverted too, thrust 1000..2000 us onto 0..UINT16_MAX (never negative)."""
+        scale = self.cf.cppm
+        roll, pitch, yaw = ((CPPM_MID_US - v) / CPPM_HALF_RANGE_US for v in (sp.roll_us, sp.pitch_us, sp.yaw_us))
+        thrust = max(0.0, (sp.thrust_us - CPPM_THRUST_LOW_US) / CPPM_THRUST_RANGE_US * self.cf.curve.pwm_max)
+        yaw_rate = yaw * scale["yaw_max_rate_dps"]
+        if sp.aux_us and sp.aux_us[0] < CPPM_LEVEL_AUX_US:
+            rates = (roll * scale["roll_max_rate_dps"], pitch * scale["pitch_max_rate_dps"], yaw_rate)
+            setpoint = Setpoint(RATE_MODES, (0.0, 0.0, 0.0), rates, thrust)
+        else:
+            angles = (roll * scale["roll_max_angle_deg"], pitch * scale["pitch_max_angle_deg"], 0.0)
+            setpoint = Setpoint(LEVEL_MODES, angles, (0.0, 0.0, yaw_rate), thrust)
+        return self._take_attitude_setpoint(arrival_s, setpoint)
+
+    def _take_attitude_setpoint(self, arrival_s: float, setpoint: Setpoint) -> bool:
+        """An attitude (or rate) setpoint with its own thrust, flown without the position estimate."""
+        values = (*setpoint.attitude_deg, *setpoint.attitude_rate_dps, setpoint.thrust_pwm)
+        if not self._auto_arm(arrival_s, values):
+            return False
+        self.low_level_active = True
+        self._sp_arrival_s = arrival_s
+        self._sp_pid = setpoint
+        self._sp_thrust_n = min(setpoint.thrust_pwm, self.cf.curve.pwm_max) / self._pwm_per_n
         self.mode = VehicleMode.ATTITUDE
         return True
 

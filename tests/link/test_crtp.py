@@ -22,16 +22,20 @@ from link.crtp.toc import Toc, TocEntry  # noqa: E402
 
 
 class _Platform:
+    def __init__(self, protocol: int):
+        self.protocol = protocol
+
     def get_protocol_version(self) -> int:
-        return 12  # what the emulator reports (firmware CRTP_PROTOCOL_VERSION)
+        return self.protocol
 
 
 class CapturingCrazyflie:
-    """What cflib's commanders need of a Crazyflie: send_packet (captured) and the protocol version."""
+    """What cflib's commanders need of a Crazyflie: send_packet (captured) and the protocol version (12: what
+    the emulator reports, firmware CRTP_PROTOCOL_VERSION; below 8 cflib sends the legacy setpoint types)."""
 
-    def __init__(self):
+    def __init__(self, protocol: int = 12):
         self.sent: list[CrtpPacket] = []
-        self.platform = _Platform()
+        self.platform = _Platform(protocol)
 
     def send_packet(self, pk, expected_reply=(), resend=False, timeout=0.2) -> None:  # noqa: ARG002
         self.sent.append(decode(bytes((pk.header,)) + bytes(pk.data)))
@@ -72,7 +76,34 @@ def test_commander_packets_decode_to_what_cflib_sent():
     commander.send_velocity_world_setpoint(0.5, 0.25, -0.25, -10.0)
     assert vars(cf.last()) == vars(setpoints.VelocityWorld(0.5, 0.25, -0.25, -10.0))  # exact in float32
     commander.send_setpoint_manual(1.0, 2.0, 3.0, 50.0, False)
-    assert isinstance(cf.last(), setpoints.Unsupported)  # decoded as valid, not flown (counted)
+    # cflib negates pitch (the legacy sign, as for RPYT) and maps 0..100 % onto PWM 10001..60000
+    assert cf.last() == setpoints.Manual(1.0, -2.0, 3.0, 35000, False)
+    commander.send_setpoint_manual(-10.0, 20.0, 0.0, 100.0, True)
+    assert cf.last() == setpoints.Manual(-10.0, -20.0, 0.0, 60000, True)
+
+
+def test_legacy_setpoints_of_old_firmware_decode_with_the_yaw_rate_turned():
+    """cflib speaks the legacy types to firmware of protocol < 8; their decoders negate the yaw rate, so the
+    same call means the same motion on either firmware."""
+    old, new = CapturingCrazyflie(protocol=7), CapturingCrazyflie()
+    for cf in (old, new):
+        commander = Commander(cf)
+        commander.send_velocity_world_setpoint(0.5, 0.25, -0.25, -10.0)
+        commander.send_zdistance_setpoint(2.0, -4.0, 30.0, 0.5)
+        commander.send_hover_setpoint(0.25, -0.5, 30.0, 0.4)
+    assert [p.data[0] for p in old.sent] == [1, 2, 5] and [p.data[0] for p in new.sent] == [8, 9, 10]
+    for legacy, current in zip(old.sent, new.sent, strict=True):
+        assert setpoints.decode_command(legacy) == setpoints.decode_command(current)
+
+
+def test_cppm_and_altitude_hold_packets():
+    """No cflib call sends these (RC transmitters and old clients do); the layouts of crtp_commander_generic.c."""
+    packet = CrtpPacket(Port.GENERIC_SETPOINT, 0, struct.pack("<BBHHHHH", 3, 1, 1600, 1400, 1500, 1750, 1200))
+    assert setpoints.decode_command(packet) == setpoints.CppmEmulation(1600, 1400, 1500, 1750, (1200,))
+    short_aux = CrtpPacket(Port.GENERIC_SETPOINT, 0, struct.pack("<BBHHHH", 3, 2, 1500, 1500, 1500, 1000))
+    assert isinstance(setpoints.decode_command(short_aux), setpoints.Malformed)  # says 2 aux, carries none
+    hold = CrtpPacket(Port.GENERIC_SETPOINT, 0, struct.pack("<Bffff", 4, 1.0, -2.0, 5.0, 0.25))
+    assert setpoints.decode_command(hold) == setpoints.AltitudeHold(1.0, -2.0, 5.0, 0.25)
 
 
 def test_high_level_and_localization_and_supervisor_packets():

@@ -137,3 +137,58 @@ def test_full_state_flies_its_position_and_the_quaternions_yaw_and_z_distance_it
     _with_position_fixes(sim, 2.0, Hover(0.3, 0.0, 0.0, 0.8))  # 0.3 m/s forward in the yaw frame
     v = sim.truth.velocity_enu_mps
     assert math.hypot(v[0] - 0.3 * math.cos(yaw), v[1] - 0.3 * math.sin(yaw)) < 0.1, v
+
+
+def _airborne_sim() -> SimVehicle:
+    return SimVehicle(CF21, np.random.default_rng(5), initial_position_enu_m=(0.0, 0.0, 1.0), firmware="crazyflie",
+                      airborne=True)
+
+
+def _hover_pwm(sim: SimVehicle) -> int:
+    """The PWM whose battery-compensated force holds the vehicle up: THRUST_MAX per motor at PWM 65535."""
+    curve = sim.firmware.cf.curve
+    return round(CF21.mass_kg * 9.81 / 4 / curve.thrust_max_n * curve.pwm_max)
+
+
+def test_manual_setpoints_fly_angles_or_rates_with_their_own_thrust():
+    from link.crtp.setpoints import Manual
+    from model.frames import euler_zyx_of
+
+    sim = _airborne_sim()
+    hover = _hover_pwm(sim)
+    _stream(sim, Manual(10.0, 0.0, 0.0, hover, False), 0.5)  # levelled: roll 10 deg, held
+    roll, pitch, _ = (math.degrees(a) for a in euler_zyx_of(sim.truth.attitude_wxyz))
+    assert abs(roll - 10.0) < 1.5 and abs(pitch) < 1.5, (roll, pitch)
+    assert sim.firmware.mode.name == "ATTITUDE" and sim.firmware._sp_pid.thrust_pwm == hover  # no lock, no clamp
+    _stream(sim, Manual(0.0, 0.0, 0.0, hover, False), 0.5)
+    _stream(sim, Manual(-40.0, 0.0, 0.0, hover, True), 0.25)  # a roll rate of -40 deg/s for 0.25 s
+    roll = math.degrees(euler_zyx_of(sim.truth.attitude_wxyz)[0])
+    assert -12.0 < roll < -6.0, roll  # -10 deg less the rate loop's rise
+
+
+def test_cppm_channels_scale_to_the_firmwares_angles_and_turn_to_rates_with_aux_0_low():
+    from link.crtp.setpoints import CppmEmulation
+
+    sim = _airborne_sim()
+    fw = sim.firmware
+    thrust_us = 1000 + round(_hover_pwm(sim) / fw.cf.curve.pwm_max * 1000)
+    _stream(sim, CppmEmulation(1600, 1400, 1550, thrust_us, ()), 0.05)
+    sp = fw._sp_pid
+    # (1500 - channel) / 500 of cppm.angRoll / angPitch (50 deg) and cppm.rateYaw (400 deg/s): each inverted
+    assert sp.attitude_deg[:2] == (-10.0, 10.0) and sp.attitude_rate_dps[2] == -40.0
+    assert abs(sp.thrust_pwm - _hover_pwm(sim)) < fw.cf.curve.pwm_max / 1000
+    _stream(sim, CppmEmulation(1600, 1500, 1500, thrust_us, (1000,)), 0.05)  # self-levelling off
+    assert fw._sp_pid.attitude_rate_dps[:2] == (-144.0, 0.0)  # cppm.rateRoll 720 deg/s
+    _stream(sim, CppmEmulation(1500, 1500, 1500, 900, ()), 0.05)
+    assert fw._sp_pid.thrust_pwm == 0.0  # below 1000 us: never negative
+
+
+def test_altitude_hold_climbs_at_its_vertical_velocity():
+    from link.crtp.setpoints import AltitudeHold
+
+    sim = _airborne_sim()
+    _with_position_fixes(sim, 1.0, PositionSetpoint(0.0, 0.0, 1.0, 0.0))
+    z0 = sim.truth.position_enu_m[2]
+    _with_position_fixes(sim, 2.0, AltitudeHold(0.0, 0.0, 0.0, 0.25))
+    vz = sim.truth.velocity_enu_mps[2]
+    assert abs(vz - 0.25) < 0.05 and sim.truth.position_enu_m[2] - z0 > 0.3, (vz, sim.truth.position_enu_m)
