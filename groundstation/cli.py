@@ -20,6 +20,7 @@ import argparse
 import importlib.util
 import logging
 import os
+import socket
 import subprocess
 import sys
 import tempfile
@@ -38,6 +39,7 @@ from groundstation.session import DEFAULT_RATE_HZ, Displays, SessionOptions, dum
 from groundstation.trajectories.basic import make_builtin
 from groundstation.usercode.adapters import CONTROLLER_OUTPUTS
 from groundstation.usercode.loader import builtin_or_user_file
+from link.crtp.packet import CRTP_HOST, DEFAULT_CRTP_PORT
 from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.base import free_loopback_port
@@ -106,6 +108,14 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
                         "udpout:HOST:PORT, serial:DEVICE:BAUD (--clock realtime), e.g. a telemetry radio; default: "
                         "zenoh, on the vehicle's keys. Mocap and truth stay on zenoh (the ground network). fly and "
                         "step start their emulator on the far end (udpin <-> udpout)")
+    g.add_argument("--link", choices=("mavlink", "crtp"), default="mavlink",
+                   help="the radio's protocol: mavlink (default) or crtp, a Crazyflie's own, through cflib "
+                        "(--uri; realtime clock, moments or attitude mode; README, the ground station's Crazyflie "
+                        "link)")
+    g.add_argument("--uri", metavar="URI",
+                   help="with --link crtp: the Crazyflie's cflib URI, e.g. radio://0/80/2M/E7E7E7E7E7 or "
+                        "udp://127.0.0.1:19850 (default: the emulator's, udp://127.0.0.1:19850+N-1; fly and step: "
+                        "their own emulator's)")
     d = p.add_argument_group("displays")
     d.add_argument("--view", action="store_true", help="show the flight live in the rerun viewer (spawned)")
     d.add_argument("--view-save", metavar="FILE.rrd", help="record the live view to a file instead (headless, CI)")
@@ -150,7 +160,8 @@ def _emulator_arguments(p: argparse.ArgumentParser) -> None:
     """The emulator child that fly and step start."""
     g = p.add_argument_group("emulator child")
     g.add_argument("--radio", default="crazyradio", help="radio profile for the emulator: name or TOML file")
-    g.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
+    g.add_argument("--clock", choices=("lockstep", "realtime"),
+                   help="lockstep (default) or realtime (the default with --link crtp, which flies in realtime)")
     g.add_argument("--seed", type=seed, default=1, help="seed of every random source (0, 1, 2, ...)")
     g.add_argument("--from-ground", action="store_true", help="take off from the floor below the start")
     g.add_argument("--firmware", choices=tuple(FIRMWARE_VEHICLES), default=DEFAULT_FIRMWARE,
@@ -171,6 +182,8 @@ def _parsed(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
     if resolution is not None and len(resolution) not in (1, 3):
         raise UserError(f"argument --resolution: give one value or three, not {len(resolution)} "
                         f"(see '{p.prog} --help')")
+    if "clock" in args and args.clock is None:  # fly and step: lockstep, unless the link cannot step
+        args.clock = "realtime" if getattr(args, "link", "mavlink") == "crtp" else "lockstep"
     if getattr(args, "vehicle_model", "") is None:
         args.vehicle_model = default_vehicle_model(getattr(args, "firmware", DEFAULT_FIRMWARE))
     level = logging.INFO if args.verbose else logging.WARNING
@@ -251,9 +264,14 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
                         "position controller)")
     if args.radio_link is not None:
         check_radio_link(args.radio_link, 1, clock)  # the ground station's address is its own vehicle's
+    if args.link == "crtp":
+        _check_crtp(args, clock)
+    elif args.uri is not None:
+        raise UserError("argument --uri: a cflib URI is for --link crtp")
     return SessionOptions(
         track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
-        connection="zenoh", zenoh_options=zopts, radio_link=args.radio_link, prefix=args.prefix,
+        connection="zenoh", zenoh_options=zopts, radio_link=args.radio_link, link=args.link,
+        crtp_uri=args.uri or f"udp://{CRTP_HOST}:{DEFAULT_CRTP_PORT + args.vehicle - 1}", prefix=args.prefix,
         vehicle_id=args.vehicle,
         vehicle_model=args.vehicle_model, gains=args.gains,
         # loaded here: a bad file is one line before any process starts
@@ -266,6 +284,25 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
         extra_summary={**extra, **({"firmware": args.firmware, "vehicle_draw": args.vehicle_draw}
                                    if hasattr(args, "firmware") else {})},
         allow_reset=getattr(args, "reset", False), extpose=_extpose(args), displays=_displays(args))
+
+
+def _check_crtp(args, clock: str) -> None:
+    """--link crtp: what it can fly (one line for what it cannot)."""
+    if importlib.util.find_spec("cflib") is None:
+        raise UserError("argument --link crtp: needs Bitcraze's cflib (pip install \"cfstack[cflib]\")")
+    if clock != "realtime":
+        raise UserError("argument --link crtp: flies in realtime (--clock realtime); lockstep over CRTP is not "
+                        "built yet")
+    if args.mode == "position":
+        raise UserError("argument --link crtp: not with --mode position (a cflib script flies position setpoints "
+                        "itself: README, cflib scripts against the emulator)")
+    if args.radio_link is not None:
+        raise UserError("argument --radio-link: the Crazyflie link's transport is cflib's, named by --uri")
+    if signing_from_args(args) is not None:
+        raise UserError("argument --signing-key-file: CRTP has no signing (MAVLink's)")
+    if args.uri is not None and "://" not in args.uri:
+        raise UserError(f"argument --uri: '{args.uri}' is not a cflib URI (e.g. udp://127.0.0.1:19850, "
+                        "radio://0/80/2M/E7E7E7E7E7)")
 
 
 def _displays(args) -> Displays:
@@ -355,7 +392,7 @@ class EmulatorChild:
         cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
                "--radio", args.radio, "--seed", str(args.seed), "--id", args.prefix,
                "--vehicle-model", args.vehicle_model, "--firmware", args.firmware,
-               "--vehicle-draw", args.vehicle_draw, "--crtp-port", "off", "--quiet"]  # no cflib clients here
+               "--vehicle-draw", args.vehicle_draw, "--quiet"]
         if world_path:
             cmd += ["--world", world_path]
         if start is not None:  # the pre-flight-checked start (it may have been moved inside the bounds)
@@ -364,6 +401,15 @@ class EmulatorChild:
             cmd += ["--airborne"]
         if args.radio_link is not None:  # the vehicle's end of the ground station's radio link
             cmd += ["--radio-link", far_end(args.radio_link)]
+        # CRTP only for this ground station's own --link crtp, on a private port (no cflib clients otherwise)
+        if args.link == "crtp" and args.uri:
+            raise UserError("argument --uri: fly and step fly the emulator they start (its URI is theirs); fly a "
+                            "vehicle at a URI with `cfstack groundstation --link crtp --uri URI`")
+        if args.link == "crtp":
+            log.warning("--link crtp: CRTP does not cross the simulated radio yet (issue 16): the radio profile "
+                        "'%s' applies to the MAVLink link only", args.radio)
+        self.crtp_port = free_loopback_port(socket.SOCK_DGRAM) if args.link == "crtp" else None
+        cmd += ["--crtp-port", "off" if self.crtp_port is None else str(self.crtp_port)]
         cmd += getattr(args, "emulator_extra", [])
         # stderr to a file, not a pipe: a pipe nobody reads during the flight could fill and stall the child
         self.stderr = tempfile.TemporaryFile(mode="w+")
@@ -437,6 +483,8 @@ def _fly_with_emulator(args, world: World | None, airborne: bool, opts: SessionO
         child = EmulatorChild(args, getattr(args, "world", None), start, airborne, args.clock)
         child.check_started()
         opts.zenoh_options = {**zopts, "connect": [child.endpoint], "listen": []}
+        if child.crtp_port is not None:
+            opts.crtp_uri = f"udp://{CRTP_HOST}:{child.crtp_port}"
         opts.peer_failure = child.failure
     try:
         return run_session(opts)

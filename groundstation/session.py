@@ -73,6 +73,8 @@ class SessionOptions:
     connection: str = "zenoh"
     zenoh_options: dict = field(default_factory=dict)
     radio_link: str | None = None  # the radio's own connection string (udp, serial...); None: `connection`
+    link: str = "mavlink"  # the radio's protocol: mavlink, or crtp (a Crazyflie through cflib, at crtp_uri)
+    crtp_uri: str | None = None
     prefix: str = "cfstack"
     vehicle_id: int = 1
     vehicle_model: str = "crazyflie"
@@ -112,10 +114,17 @@ def run_session(opts: SessionOptions) -> SessionResult:
             flight_log.write_json("plan.json", opts.plan)
         clock_box: dict = {}
         observers: list = []
-        link = VehicleLink(opts.connection, keys, ActuatorLimits.from_vehicle(vehicle),
-                           clock=lambda: clock_box["clock"].now(), zenoh_options=opts.zenoh_options,
-                           signing=opts.signing, tlog_path=flight_log.tlog_path,
-                           shared_clock=opts.clock == "lockstep", radio_link=opts.radio_link)
+        crazyflie = _crazyflie_radio(opts, lambda: clock_box["clock"].now()) if opts.link == "crtp" else None
+        try:
+            link = VehicleLink(opts.connection, keys, ActuatorLimits.from_vehicle(vehicle),
+                               clock=lambda: clock_box["clock"].now(), zenoh_options=opts.zenoh_options,
+                               signing=opts.signing, tlog_path=flight_log.tlog_path,
+                               shared_clock=opts.clock == "lockstep", radio_link=opts.radio_link, radio=crazyflie)
+        except BaseException:
+            if crazyflie is not None:
+                crazyflie.close()
+            raise
+        imu_rate_hz = vehicle.imu.rate_hz if crazyflie is None else 1000.0 / crazyflie.settings.imu_period_ms
         try:
             if opts.clock == "lockstep":
                 clock_transport = open_transport(opts.connection, tx=keys.clock_ack, rx=keys.clock,
@@ -125,7 +134,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
                 clock_transport = None
                 clock = RealtimeClock(period, link)
             clock_box["clock"] = clock
-            estimator = ErrorStateKF(opts.sensor_spec, vehicle.imu.rate_hz)
+            estimator = ErrorStateKF(opts.sensor_spec, imu_rate_hz)
             gains = load_gains(opts.gains)
             controller = SE3Controller(vehicle, gains, variant=opts.controller_variant)
             if opts.user_code is not None:  # the user's SE3Control; ours stays as its failsafe
@@ -269,7 +278,8 @@ def _link_summary(loop: FlightLoop) -> dict:
     stats = loop.link.radio.stats.snapshot()
     ages = np.array(loop.link.radio.stats.age_s) * 1e3
     rtts = np.array(loop.health.rtt_s) * 1e3
-    reported = loop.health.last_status is not None
+    # a Crazyflie does not count the packets it received: what it got is unknown, not "none"
+    reported = loop.health.last_status is not None and getattr(loop.link.radio, "reports_uplink_count", True)
     return {
         "radio": loop.link.radio.transport.scheme,  # the transport the radio link crossed (--radio-link)
         "uplink_sent": stats.tx_frames,
@@ -285,6 +295,16 @@ def _link_summary(loop: FlightLoop) -> dict:
         "downlink_lost": stats.rx_lost,
         "uplink_lost": stats.tx_frames - loop.health.uplink_received if reported else None,
     }
+
+
+def _crazyflie_radio(opts: SessionOptions, clock):
+    """The opened cflib link to the Crazyflie at opts.crtp_uri (imported only for --link crtp)."""
+    from groundstation.crtp_settings import load_crtp_link_settings
+    from link.crtp.cflib_link import CrazyflieRadio
+
+    radio = CrazyflieRadio(opts.crtp_uri, load_crtp_link_settings(), clock)
+    radio.open()
+    return radio
 
 
 def _open_displays(opts: SessionOptions, log_dir: Path, mission: Mission, rate_hz: float, gains) -> list:

@@ -35,20 +35,24 @@ class Inbox:
 class VehicleLink:
     def __init__(self, connection: str, keys: VehicleKeys, limits: ActuatorLimits, clock: Callable[[], float],
                  *, zenoh_options: dict | None = None, signing=None, tlog_path=None, with_truth: bool = True,
-                 shared_clock: bool = False, radio_link: str | None = None):
+                 shared_clock: bool = False, radio_link: str | None = None, radio=None):
         """`shared_clock`: both ends stamp with the same clock (lockstep simulation time), so one-way frame
         ages are measured directly instead of through TIMESYNC's symmetric-path offset. `radio_link`: the
-        radio's own connection string (udp, serial, ...: this vehicle's address), None: `connection`."""
+        radio's own connection string (udp, serial, ...: this vehicle's address), None: `connection`.
+        `radio`: an opened endpoint of another protocol that speaks cfstack messages (link.crtp.cflib_link's
+        CrazyflieRadio) instead of MAVLink on the radio link; the tlog then stays empty (it is MAVLink's)."""
         opts = zenoh_options or {}
-        radio = connection if radio_link is None else radio_link
-        radio_opts = opts if radio.startswith("zenoh") else {}
+        radio_connection = connection if radio_link is None else radio_link
+        radio_opts = opts if radio_connection.startswith("zenoh") else {}
         self.keys = keys
         self.clock = clock
-        self.tlog = TlogWriter(tlog_path, buffered=True) if tlog_path else None
-        codec = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits, signing=signing)
-        self.radio = Endpoint(open_transport(radio, tx=keys.uplink, rx=keys.downlink, **radio_opts), codec,
-                              FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog,
-                              shared_clock=shared_clock)
+        self.tlog = TlogWriter(tlog_path, buffered=True) if tlog_path and radio is None else None
+        if radio is None:
+            codec = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits, signing=signing)
+            radio = Endpoint(open_transport(radio_connection, tx=keys.uplink, rx=keys.downlink, **radio_opts), codec,
+                             FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog,
+                             shared_clock=shared_clock)
+        self.radio = radio
         ground = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits)
         self.mocap = Endpoint(open_transport(connection, rx=keys.mocap, **opts), ground,
                               FrameParser(ground), clock=clock)

@@ -20,12 +20,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from link.crtp.packet import CRTP_HOST, DEFAULT_CRTP_PORT
 from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
 from model.errors import OneLineParser, UserError
 from model.options import finite_float, positive_float, seed, whole_number
-from simulator.crtp_service import CRTP_HOST, DEFAULT_CRTP_PORT
 
 if TYPE_CHECKING:
     from simulator.emulator_config import EmulatorConfig

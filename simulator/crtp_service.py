@@ -12,7 +12,9 @@ Services (crazyflie-firmware crtpservice.c, platformservice.c, log.c, param_logi
 - link (15): echo (0), the "Bitcraze Crazyflie" source name (1), null packets answered with a null packet
   (cflib's scan takes any answer as a Crazyflie);
 - platform (13): protocol version 12, firmware and device strings; channel 0 commands are taken, not
-  answered (the firmware sends nothing back either);
+  answered (the firmware sends nothing back either); the app channel (2) with cfstack's packets
+  (link.crtp.appchannel: thrust + moment for the firmware's force-torque path, time sync answered with the
+  vehicle's clock), as if the app that reads them were built in;
 - memory (4): no memories;
 - log (5): TOC V2 of LOG_VARIABLES, block create/append/delete/start/stop/reset, data on channel 2 with
   a millisecond u24 timestamp of the vehicle's clock;
@@ -31,12 +33,11 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from link.crtp import setpoints
+from link.crtp import appchannel, setpoints
 from link.crtp.packet import CRTP_MAX_DATA, CrtpPacket, Port, decode, encode, is_null
 from link.crtp.toc import CMD_TOC_INFO, CMD_TOC_ITEM, LOG_MAX_BLOCKS, LOG_TYPE_NAMES, TYPES, Toc, TocEntry
+from link.messages import ThrustMoment, TimeSync
 
-DEFAULT_CRTP_PORT = 19850  # CrazySim's: vehicle N (from 1) at 19850 + N - 1; cflib's UDP scan covers 19850-19859
-CRTP_HOST = "127.0.0.1"
 PROTOCOL_VERSION = 12  # firmware crtp.h CRTP_PROTOCOL_VERSION (cflib uses the supervisor port from 12)
 LINK_SOURCE = b"Bitcraze Crazyflie"  # crtpservice.c linkSource
 FIRMWARE_STRING = b"cfstack-emulated"
@@ -85,6 +86,7 @@ LOG_VARIABLES: tuple[tuple[str, str, str, Callable], ...] = (
     *(("acc", axis, "float", _item("acc_g", i)) for i, axis in enumerate("xyz")),
     *(("kalman", f"varP{axis.upper()}", "float", _item("position_variance_m2", i)) for i, axis in enumerate("xyz")),
     ("pm", "vbat", "float", lambda fw: fw.battery.voltage_v),
+    ("pm", "batteryLevel", "uint8_t", lambda fw: round(100.0 * fw.battery.charge_left)),  # %
     *(("motor", f"m{i + 1}", "uint16_t", _item("motor_pwm", i)) for i in range(4)),
 )
 
@@ -126,6 +128,11 @@ def make_params(fw) -> list[Param]:
         Param(TocEntry("commander", "enHighLevel", "uint8_t"), lambda: int(fw.high_level_enabled), set_high_level),
         # estimator_kalman.c: 1 resets the position estimate, and the estimator sets it back to 0
         Param(TocEntry("kalman", "resetEstimation", "uint8_t"), lambda: 0, reset_estimation),
+        # crtp_commander_rpyt.c: each RPYT axis an angle (1) or a rate (0); defaults roll, pitch 1, yaw 0
+        *(Param(TocEntry("flightmode", f"stabMode{axis.title()}", "uint8_t"),
+                (lambda a=axis: fw.rpyt.stab_mode[a]),
+                (lambda v, a=axis: fw.rpyt.stab_mode.__setitem__(a, 1 if v else 0)))
+          for axis in ("roll", "pitch", "yaw")),
         *_pid_params("pid_attitude", fw.controller.attitude.attitude),
         *_pid_params("pid_rate", fw.controller.attitude.rate),
         Param(TocEntry("locSrv", "extPosStdDev", "float", read_only=True), lambda: fw.cf.ext_pos_std_m),
@@ -146,8 +153,11 @@ class CrtpService:
     def __init__(self, sim):
         self.sim = sim
         self.fw = sim.firmware
-        self.log_toc = Toc("log", [TocEntry(g, n, t) for g, n, t, _ in LOG_VARIABLES])
-        self._log_getters = [get for *_, get in LOG_VARIABLES]
+        # supervisor.info (supervisor.c infoBitfield, the bits of the state query) reads the service's clock
+        entries = [TocEntry(g, n, t) for g, n, t, _ in LOG_VARIABLES] + [TocEntry("supervisor", "info", "uint16_t")]
+        self.log_toc = Toc("log", entries)
+        self._log_getters = [get for *_, get in LOG_VARIABLES] + [lambda fw: self._state_bits(self._now_s)]
+        self._now_s = 0.0
         self.params = make_params(self.fw)
         self.param_toc = Toc("param", [p.entry for p in self.params])
         self.blocks: dict[int, LogBlock] = {}
@@ -181,7 +191,7 @@ class CrtpService:
         if port == Port.LINK:
             return self._link(channel, data)
         if port == Port.PLATFORM:
-            return self._platform(channel, data)
+            return self._platform(channel, data, t_s)
         if port == Port.MEM:
             return [(0, b"\x01\x00")] if channel == 0 and data[:1] == b"\x01" else self._unknown("mem request")
         if port == Port.LOG:
@@ -221,14 +231,32 @@ class CrtpService:
             return [(1, LINK_SOURCE.ljust(CRTP_MAX_DATA, b"\0"))]
         return self._unknown("link channel")
 
-    def _platform(self, channel: int, data: bytes) -> list[tuple[int, bytes]]:
+    def _platform(self, channel: int, data: bytes, t_s: float) -> list[tuple[int, bytes]]:
         if channel == 1 and data:
             answers = {0: struct.pack("<i", PROTOCOL_VERSION), 1: FIRMWARE_STRING, 2: DEVICE_STRING}
             if data[0] in answers:
                 return [(1, bytes((data[0],)) + answers[data[0]])]
         if channel == 0 and data:
             return []  # platform commands (continuous wave, notifications): taken, never answered
+        if channel == appchannel.APP_CHANNEL:
+            return self._app(data, t_s)
         return self._unknown("platform request")
+
+    def _app(self, data: bytes, t_s: float) -> list[tuple[int, bytes]]:
+        message = appchannel.decode(data, from_vehicle=False)
+        if message is None:
+            return self._unknown("app-channel packet")
+        if isinstance(message, setpoints.Malformed):
+            self.counters["malformed"] += 1
+            return []
+        if isinstance(message, TimeSync):  # answered with the vehicle's clock (usecTimestamp), >= 1 ns
+            reply = TimeSync(remote_ns=max(1, round(t_s * 1e9)), origin_ns=message.origin_ns)
+            return [(appchannel.APP_CHANNEL, appchannel.encode_time_sync(reply, reply=True))]
+        if not all(math.isfinite(v) for v in (message.thrust_n, *message.moment_flu_nm)):
+            self.counters["non_finite"] += 1
+            return []
+        self.sim.handle_uplink(ThrustMoment(t_s, message.thrust_n, message.moment_flu_nm), t_s)
+        return []
 
     def _toc(self, toc: Toc, data: bytes) -> list[tuple[int, bytes]]:
         if data[0] == CMD_TOC_INFO:
@@ -310,6 +338,7 @@ class CrtpService:
     def due(self, t_s: float) -> list[bytes]:
         """Log data packets of every running block due by t_s (each block at most once per call)."""
         out = []
+        self._now_s = t_s
         for block_id, block in self.blocks.items():
             if block.next_s is None or t_s + 1e-9 < block.next_s:
                 continue

@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
+DEFAULT_CRTP_PORT = 19850  # CrazySim's: vehicle N (from 1) at 19850 + N - 1; cflib's UDP scan covers 19850-19859
+CRTP_HOST = "127.0.0.1"
 CRTP_MAX_DATA = 30  # firmware crtp.h CRTP_MAX_DATA_SIZE; cflib CRTPPacket.MAX_DATA_SIZE
 LEGACY_BITS = 0x0C
 NULL_MASK = 0xF3  # (header & NULL_MASK) == NULL_MASK: a null packet (firmware CRTP_IS_NULL_PACKET)

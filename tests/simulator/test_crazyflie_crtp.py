@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from link.crtp.setpoints import HighLevel, NotifySetpointsStop, PositionSetpoint, Rpyt, StopSetpoint
 from model.vehicle import load_vehicle
@@ -192,3 +193,65 @@ def test_altitude_hold_climbs_at_its_vertical_velocity():
     _with_position_fixes(sim, 2.0, AltitudeHold(0.0, 0.0, 0.0, 0.25))
     vz = sim.truth.velocity_enu_mps[2]
     assert abs(vz - 0.25) < 0.05 and sim.truth.position_enu_m[2] - z0 > 0.3, (vz, sim.truth.position_enu_m)
+
+
+def test_stab_mode_yaw_makes_the_rpyt_yaw_field_a_heading():
+    from model.frames import yaw_of
+    from simulator.crtp_service import CrtpService
+
+    sim = _airborne_sim()
+    service = CrtpService(sim)
+    names = [f"{p.entry.group}.{p.entry.name}" for p in service.params]
+    index = names.index("flightmode.stabModeYaw")
+    assert service.params[index].get() == 0  # the firmware's default: a rate
+    service.params[index].set(1)
+    hover = _hover_pwm(sim)
+    _stream(sim, Rpyt(0.0, 0.0, 0.0, 0), 0.02)
+    _stream(sim, Rpyt(0.0, 0.0, 30.0, hover), 1.5)
+    assert abs(math.degrees(yaw_of(sim.truth.attitude_wxyz)) - 30.0) < 2.0
+    _stream(sim, Rpyt(0.0, 0.0, 30.0, hover), 0.5)  # held, not integrated as a rate would be
+    assert abs(math.degrees(yaw_of(sim.truth.attitude_wxyz)) - 30.0) < 2.0
+
+
+def test_the_app_channel_flies_thrust_and_moments_and_answers_time_sync_with_the_vehicle_clock():
+    from link.crtp import appchannel
+    from link.crtp.packet import CrtpPacket, Port, decode, encode
+    from link.messages import ThrustMoment, TimeSync
+    from simulator.crtp_service import CrtpService
+
+    sim = _airborne_sim()
+    service = CrtpService(sim)
+    sim.run(0.5)
+    request = appchannel.encode_time_sync(TimeSync(0, 42), reply=False)
+    (reply,) = service.handle(encode(CrtpPacket(Port.PLATFORM, appchannel.APP_CHANNEL, request)), sim.t_s)
+    answer = appchannel.decode(decode(reply).data, from_vehicle=True)
+    assert answer.origin_ns == 42 and answer.remote_ns == round(sim.t_s * 1e9)
+    # the app channel's thrust and moments fly exactly as MAVLink's ThrustMoment does (values exact in float32)
+    direct = _airborne_sim()
+    direct.run(0.5)
+    for _ in range(20):
+        command = ThrustMoment(sim.t_s, 0.28125, (0.0001220703125, 0.0, -0.0001220703125))
+        packet = appchannel.encode_thrust_moment(command)
+        assert service.handle(encode(CrtpPacket(Port.PLATFORM, appchannel.APP_CHANNEL, packet)), sim.t_s) == []
+        direct.handle_uplink(command, direct.t_s)
+        sim.run(0.01)
+        direct.run(0.01)
+    assert sim.truth == direct.truth and sim.truth.attitude_wxyz[1] > 0.05  # it rolled: the moment was flown
+    nan = appchannel.encode_thrust_moment(ThrustMoment(sim.t_s, float("nan"), (0.0, 0.0, 0.0)))
+    service.handle(encode(CrtpPacket(Port.PLATFORM, appchannel.APP_CHANNEL, nan)), sim.t_s)
+    assert service.counters["non_finite"] == 1
+
+
+def test_the_ground_stations_n_to_pwm_map_is_the_emulated_firmwares_compensated_thrust():
+    """groundstation/params/crtp_link.toml's calibration against the emulated firmware's battery-compensated
+    motors (motorsCompensateBatteryVoltage and the CF 2.1+ thrust curve): the PWM the ground station asks for a
+    collective thrust makes that thrust on every motor, whatever the battery's voltage."""
+    from groundstation.crtp_settings import load_crtp_link_settings
+
+    settings = load_crtp_link_settings()
+    curve = _airborne_sim().firmware.cf.curve
+    for thrust_n in (0.1, CF21.mass_kg * 9.81, 0.4):
+        pwm = settings.thrust_pwm(thrust_n)
+        for supply_v in (4.2, 3.9, 3.6):
+            ratio = curve.compensate(pwm, supply_v)
+            assert 4 * curve.thrust_n(ratio, supply_v) == pytest.approx(thrust_n, rel=2e-4)
