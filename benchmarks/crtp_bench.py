@@ -2,7 +2,9 @@
 
 Prints, from one run:
 1. the round trip of a CRTP link echo (port 15, channel 0: what cflib's latency ping sends) to a
-   `cfstack emulator` serving CRTP (realtime clock: the echo is answered between physics steps), p50/p99;
+   `cfstack emulator` serving CRTP (realtime clock: the echo is answered between physics steps), p50/p99,
+   with the ideal radio (the service's own cost) and with the crazyradio profile (its air time and latency,
+   both ways);
 2. the round trip of the same datagram through a bare UDP echo process (the floor of any UDP service here);
 3. cflib's own connect time (scan excluded): SyncCrazyflie open with the TOCs downloaded, then all
    parameter values read, cold (no TOC cache) and warm (cache filled by the first connect).
@@ -29,8 +31,9 @@ from link.transports.base import free_loopback_port
 ECHO = bytes((0xFC,)) + b"cfstack-crtp-echo"  # 15:0 with the legacy bits, as cflib sends it
 
 
-def start_emulator(port: int) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--crtp-port", str(port), "--listen",
+def start_emulator(port: int, radio: str) -> subprocess.Popen:
+    proc = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--crtp-port", str(port), "--radio", radio,
+                             "--listen",
                              f"tcp/127.0.0.1:{free_loopback_port()}", "--id", f"b{uuid.uuid4().hex[:8]}", "--quiet"],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
@@ -78,17 +81,21 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--count", type=int, default=2000, help="round trips per measurement")
     args = p.parse_args()
-    port = free_loopback_port(socket.SOCK_DGRAM)
-    emulator = start_emulator(port)
-    try:
+    bare = bare_udp_rtt_ms(len(ECHO), args.count)
+    for radio in ("ideal", "crazyradio"):  # the cflib connect below runs on the last: the default radio
+        port = free_loopback_port(socket.SOCK_DGRAM)
+        emulator = start_emulator(port, radio)
         crtp = crtp_echo_rtt_ms(port, args.count)
-        bare = bare_udp_rtt_ms(len(ECHO), args.count)
-        print(f"CRTP link echo to the emulator ({len(ECHO)} B, {args.count} round trips): "
-              f"p50 {np.percentile(crtp, 50):.3f} ms, p99 {np.percentile(crtp, 99):.3f} ms")
-        print(f"bare UDP echo, same size, same run:                p50 {np.percentile(bare, 50):.3f} ms, "
-              f"p99 {np.percentile(bare, 99):.3f} ms")
-        print(f"ratio p50 {np.percentile(crtp, 50) / np.percentile(bare, 50):.2f}x, "
+        print(f"CRTP link echo to the emulator, {radio} radio ({len(ECHO)} B, {args.count} round trips): "
+              f"p50 {np.percentile(crtp, 50):.3f} ms, p99 {np.percentile(crtp, 99):.3f} ms; ratio to a bare UDP "
+              f"echo p50 {np.percentile(crtp, 50) / np.percentile(bare, 50):.2f}x, "
               f"p99 {np.percentile(crtp, 99) / np.percentile(bare, 99):.2f}x")
+        if radio != "crazyradio":
+            emulator.send_signal(signal.SIGINT)
+            emulator.wait(timeout=30)
+    print(f"bare UDP echo, same size, same run: p50 {np.percentile(bare, 50):.3f} ms, "
+          f"p99 {np.percentile(bare, 99):.3f} ms")
+    try:
         try:
             import cflib.crtp
         except ImportError:

@@ -405,9 +405,6 @@ class EmulatorChild:
         if args.link == "crtp" and args.uri:
             raise UserError("argument --uri: fly and step fly the emulator they start (its URI is theirs); fly a "
                             "vehicle at a URI with `cfstack groundstation --link crtp --uri URI`")
-        if args.link == "crtp":
-            log.warning("--link crtp: CRTP does not cross the simulated radio yet (issue 16): the radio profile "
-                        "'%s' applies to the MAVLink link only", args.radio)
         self.crtp_port = free_loopback_port(socket.SOCK_DGRAM) if args.link == "crtp" else None
         cmd += ["--crtp-port", "off" if self.crtp_port is None else str(self.crtp_port)]
         cmd += getattr(args, "emulator_extra", [])

@@ -169,7 +169,9 @@ class Emulator:
             if self.config.mocap_cuts:
                 line += f", mocap cut {node.mocap_cut}"
             if node.crtp is not None:
-                line += f", {node.crtp.describe()}"
+                up, down = node.crtp_uplink_radio.stats, node.crtp_downlink_radio.stats
+                line += (f", {node.crtp.describe()} (radio: up {up.delivered}/{up.offered}, down "
+                         f"{down.delivered}/{down.offered} delivered/offered, {node.crtp_lost} given up)")
             parts.append(f"{line}, {crash}")
         return "; ".join(parts)
 

@@ -47,6 +47,7 @@ log = logging.getLogger("cfstack.emulator")
 RADIO_STATUS_PERIOD_S = 1.0  # RADIO_STATUS once a second, as SiK radios report it
 STEP_TOTAL = "step"  # profiled: a whole VehicleNode.step, the parts included
 DECK_YIELD_S = 1.0  # the positioning deck stands aside while a ground station's extpose is this fresh
+CRTP_LINK_ATTEMPTS = 100  # cflib radiodriver.py _nr_of_retries: unacknowledged sends before "Too many packets lost"
 
 
 class GroundFrameGate:
@@ -95,7 +96,8 @@ class VehicleNode:
 
     def __init__(self, config: EmulatorConfig, vehicle_id: int, rng_seed: np.random.SeedSequence,
                  start: tuple[float, float, float]):
-        sim_seed, up_seed, down_seed = rng_seed.spawn(3)
+        # the CRTP radios' seeds come after the first three, which stay what they were before CRTP had radios
+        sim_seed, up_seed, down_seed, crtp_up_seed, crtp_down_seed = rng_seed.spawn(5)
         self.vehicle_id = vehicle_id
         self.keys = VehicleKeys(config.prefix, vehicle_id)
         self.sim = SimVehicle(config.vehicle, np.random.default_rng(sim_seed), world=config.world,
@@ -109,6 +111,15 @@ class VehicleNode:
                                          keep_ledger=config.keep_ledger)
         self.downlink_radio = RadioChannel(config.radio, np.random.default_rng(down_seed),
                                            name=f"downlink {vehicle_id}", keep_ledger=config.keep_ledger)
+        # CRTP (cflib clients) on radios of their own with the same profile: the air is not yet shared with
+        # the MAVLink channels (that is the half-duplex Crazyradio model of issue 16)
+        self.crtp_uplink_radio = RadioChannel(config.radio, np.random.default_rng(crtp_up_seed),
+                                              name=f"crtp uplink {vehicle_id}", keep_ledger=config.keep_ledger)
+        self.crtp_downlink_radio = RadioChannel(config.radio, np.random.default_rng(crtp_down_seed),
+                                                name=f"crtp downlink {vehicle_id}", keep_ledger=config.keep_ledger)
+        self._crtp_up: deque[list] = deque()  # [packet, attempts] not yet on the air, in order
+        self._crtp_down: deque[list] = deque()
+        self.crtp_lost = 0  # packets given up after CRTP_LINK_ATTEMPTS failed attempts
         limits = ActuatorLimits.from_vehicle(config.vehicle)
         self.codec = Codec(system_id=vehicle_id, limits=limits, signing=config.signing)
         self.ground_codec = Codec(system_id=vehicle_id, limits=limits)  # mocap and truth: never signed
@@ -171,14 +182,37 @@ class VehicleNode:
         self.crtp = CrtpService(self.sim)
 
     def serve_crtp(self, t_s: float) -> None:
-        """Answer the cflib client's datagrams and send the log blocks due (realtime)."""
-        link = self.crtp_link
-        replies = []
-        for datagram in link.receive(0.0):
-            replies.extend(self.crtp.handle(datagram, t_s))
-        replies.extend(self.crtp.due(t_s))
-        for reply in replies:
-            link.send(reply)
+        """Realtime, once per step: the cflib client's datagrams cross the uplink radio, what arrives is
+        answered, the answers and the log blocks due cross the downlink radio, what arrives is sent.
+
+        A packet the radio loses is offered again at the next step, and the ones behind it wait (head of
+        line): cflib's radio driver resends a packet until it is acknowledged, giving up after
+        CRTP_LINK_ATTEMPTS, and the Crazyflie's reply rides on an acknowledgement that is resent with it.
+        So CRTP is delayed, not lost, by the air (the UDP driver alone would never resend). A corrupted
+        copy fails the radio's CRC and is discarded."""
+        for datagram in self.crtp_link.receive(0.0):
+            self._crtp_up.append([datagram, 0])
+        self._offer_crtp(self.crtp_uplink_radio, self._crtp_up, t_s)
+        for packet in self.crtp_uplink_radio.pop_due(t_s, discard_corrupted=True):
+            self._crtp_down.extend([reply, 0] for reply in self.crtp.handle(packet, t_s))
+        self._crtp_down.extend([packet, 0] for packet in self.crtp.due(t_s))
+        self._offer_crtp(self.crtp_downlink_radio, self._crtp_down, t_s)
+        for packet in self.crtp_downlink_radio.pop_due(t_s, discard_corrupted=True):
+            self.crtp_link.send(packet)
+
+    def _offer_crtp(self, radio: RadioChannel, pending: deque, t_s: float) -> None:
+        """Put waiting packets on the air in order until one is lost (it is tried again next step)."""
+        cut = bool(self.radio_cuts) and covered(self.radio_cuts, t_s)
+        while pending:
+            entry = pending[0]
+            if not cut and radio.push(entry[0], t_s):
+                pending.popleft()
+                continue
+            entry[1] += 1
+            if entry[1] < CRTP_LINK_ATTEMPTS:
+                return
+            pending.popleft()
+            self.crtp_lost += 1
 
     def close(self) -> None:
         for transport in (*self.outbox.senders, self.link, self.clock, self.crtp_link):

@@ -156,6 +156,7 @@ class RadioChannel:
         self._heap: list[tuple[float, int, int, bytes, bool, float, bool]] = []
         self._copy_seq = 0  # tie-breaker: copies scheduled earlier leave first
         self._last_push_s = -math.inf
+        self._lost = False  # the last push's frame was dropped
         self._channel_free_s = -math.inf
         self._waiting_starts: deque[float] = deque()  # start times of admitted frames (some may have started)
         self._last_delivery_s = -math.inf
@@ -207,8 +208,9 @@ class RadioChannel:
     def next_delivery_s(self) -> float | None:
         return self._heap[0][0] if self._heap else None
 
-    def push(self, frame: bytes, t_s: float) -> None:
-        """Offer a frame at simulation time t_s (s); its whole fate is drawn now."""
+    def push(self, frame: bytes, t_s: float) -> bool:
+        """Offer a frame at simulation time t_s (s); its whole fate is drawn now. False: it is lost (the queue
+        or the air dropped it), which a link layer that retries (CRTP on a Crazyradio) acts on."""
         if t_s < self._last_push_s:
             raise ValueError(f"radio {self.name!r}: frame pushed at t={t_s} s, before the previous "
                              f"push at t={self._last_push_s} s (pushes must not go back in time)")
@@ -219,12 +221,16 @@ class RadioChannel:
         index = stats.offered
         stats.offered = index + 1
         stats.bytes_offered += len(frame)
+        self._lost = False
         fate = self._decide(frame, index, t_s)
         if self.keep_ledger:
             self.ledger.append(fate)
+        return not self._lost
 
-    def pop_due(self, t_s: float) -> list[bytes]:
-        """Every frame delivered at or before t_s, in delivery order (ties: offer order).
+    def pop_due(self, t_s: float, discard_corrupted: bool = False) -> list[bytes]:
+        """Every frame delivered at or before t_s, in delivery order (ties: offer order); with
+        discard_corrupted, a corrupted copy is counted (stats.corrupted) and not handed over, as a radio whose
+        packets carry their own CRC (the nRF24's, under CRTP) discards it.
 
         Times within TIME_EPS_S count as equal: offer time + latency carries float rounding (0.1 + 0.02 >
         0.12), and a frame due exactly at a step must not slip to the next one."""
@@ -242,6 +248,8 @@ class RadioChannel:
             latencies.append(delivery_s - offered_s)
             if corrupted:
                 stats.corrupted += 1
+                if discard_corrupted:
+                    continue
             if repaired:
                 stats.repaired += 1
             if index < self._latest_index_delivered:
@@ -287,6 +295,7 @@ class RadioChannel:
         start_s = t_s if t_s >= free_s else free_s
         if start_s > t_s and not self._admit(t_s, start_s):
             self.stats.dropped[DropCause.QUEUE] += 1
+            self._lost = True
             return FrameFate(t_s, size, DropCause.QUEUE) if self.keep_ledger else None
         if self._packet_bytes is None:
             air_s, retransmissions, cause = 0.0, 0, None
@@ -307,6 +316,7 @@ class RadioChannel:
         self._air_outcomes.append(cause is None)
         if cause is not None:
             self.stats.dropped[cause] += 1
+            self._lost = True
             return FrameFate(t_s, size, cause, retransmissions=retransmissions) if self.keep_ledger else None
         delivery_s = self._delivery_time(t_s, end_s)
         copies = 1

@@ -111,7 +111,7 @@ class _TransportView:
 
 
 class CrazyflieRadio:
-    """An Endpoint over cflib (link.endpoint's interface). `open()` connects, configures and unlocks."""
+    """An Endpoint over cflib (link.endpoint's interface). `open()` connects and asks for the log blocks."""
 
     def __init__(self, uri: str, settings: CrtpLinkSettings, clock: Callable[[], float]):
         self.uri = uri
