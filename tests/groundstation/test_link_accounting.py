@@ -16,6 +16,7 @@ import signal
 import subprocess
 import sys
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -84,10 +85,22 @@ def configured_loss(case: dict) -> float:
     return case["loss"]
 
 
+@pytest.fixture(scope="module")
+def loss_flights(tmp_path_factory):
+    """One hover per loss case, flown two at a time (each lockstep flight keeps about one core busy)."""
+    def fly(case: str):
+        folder = tmp_path_factory.mktemp(case)
+        radio = radio_profile(folder, case, **LOSS_CASES[case])
+        return fly_against_emulator(folder, radio, "--trajectory", "hover", "--mode", "moments")
+
+    with ThreadPoolExecutor(2) as pool:
+        futures = {case: pool.submit(fly, case) for case in LOSS_CASES}
+        return {case: future.result() for case, future in futures.items()}
+
+
 @pytest.mark.parametrize("case", list(LOSS_CASES))
-def test_measured_loss_matches_the_radio_frame_for_frame(tmp_path, case):
-    radio = radio_profile(tmp_path, case, **LOSS_CASES[case])
-    summary, report, log = fly_against_emulator(tmp_path, radio, "--trajectory", "hover", "--mode", "moments")
+def test_measured_loss_matches_the_radio_frame_for_frame(loss_flights, case):
+    summary, report, log = loss_flights[case]
     link = summary["link"]
     down, up = report["downlink"], report["uplink"]
 
@@ -134,15 +147,24 @@ def _states_hash(tmp_path, seed: int, name: str, mode: str, *extra: str) -> str:
     return hashlib.sha256((log / "states.csv").read_bytes()).hexdigest()
 
 
+def _states_hashes(tmp_path, *runs: tuple) -> list[str]:
+    """_states_hash of each (seed, name, mode, *extra), flown at once: a lockstep flight keeps about one core
+    busy (its two processes wait on each other), and the runs are independent (own endpoint, own log)."""
+    with ThreadPoolExecutor(len(runs)) as pool:
+        futures = [pool.submit(_states_hash, tmp_path, *run) for run in runs]
+        return [future.result() for future in futures]
+
+
 def test_same_seed_gives_byte_identical_states_and_another_seed_differs(tmp_path):
-    first = _states_hash(tmp_path, 11, "a", "attitude")
-    assert _states_hash(tmp_path, 11, "b", "attitude") == first
-    assert _states_hash(tmp_path, 12, "c", "attitude") != first
+    first, again, other = _states_hashes(tmp_path, (11, "a", "attitude"), (11, "b", "attitude"),
+                                         (12, "c", "attitude"))
+    assert again == first and other != first
 
 
 def test_pipelined_ticks_give_the_same_flight_as_strict_lockstep(tmp_path):
     """In moments mode at 500 Hz the emulator publishes a tick before the last one's ack arrives (the
     firmware-cycle lookahead covers a whole tick); with --no-lookahead it waits for every ack. The
     flight log must not tell them apart."""
-    pipelined = _states_hash(tmp_path, 5, "pipelined", "moments")
-    assert _states_hash(tmp_path, 5, "strict", "moments", "--emulator-arg=--no-lookahead") == pipelined
+    pipelined, strict = _states_hashes(tmp_path, (5, "pipelined", "moments"),
+                                       (5, "strict", "moments", "--emulator-arg=--no-lookahead"))
+    assert strict == pipelined

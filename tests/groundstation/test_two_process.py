@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -112,9 +113,19 @@ def test_a_killed_ground_station_then_a_reset_flies_again(emulator, tmp_path):
     assert 0 < link["uplink_delivered"] <= link["uplink_sent"] and link["uplink_lost"] >= 0
 
 
-def test_a_ground_station_with_nobody_to_talk_to_says_where_it_looked(tmp_path):
+@pytest.fixture(scope="module", autouse=True)
+def lonely_groundstation(tmp_path_factory):
+    """A ground station pointed where nobody listens, started with the module: it waits out its connect
+    timeout (10 s of wall clock, mostly asleep) while the other tests fly."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    run, summary = groundstation(tmp_path / "log", "--connect", endpoint)
+    log = tmp_path_factory.mktemp("lonely") / "log"
+    with ThreadPoolExecutor(1) as pool:
+        yield endpoint, pool.submit(groundstation, log, "--connect", endpoint)
+
+
+def test_a_ground_station_with_nobody_to_talk_to_says_where_it_looked(lonely_groundstation):
+    endpoint, future = lonely_groundstation
+    run, summary = future.result()
     assert run.returncode == 1 and summary["result"] == "aborted"
     lines = [line for line in run.stderr.splitlines() if line.startswith("cfstack groundstation:")]
     assert len(lines) == 1 and "no heartbeat" in lines[0] and endpoint in lines[0] and "--connect" in lines[0]
