@@ -73,7 +73,8 @@ def crtp_traffic(mode: str, command_hz: float):
     uplink = [(command_hz, command_bytes), (load_mocap_room("vicon").rate_hz, EXTPOSE_BYTES),
               (sync_hz, len(appchannel.encode_time_sync(TimeSync(0, 1), reply=False)))]
     downlink = [(1000.0 / settings.imu_period_ms, IMU_LOG_BYTES),
-                (1000.0 / settings.status_period_ms, STATUS_LOG_BYTES), (sync_hz, len(appchannel.encode_time_sync(TimeSync(1, 1), reply=True)))]
+                (1000.0 / settings.status_period_ms, STATUS_LOG_BYTES),
+                (sync_hz, len(appchannel.encode_time_sync(TimeSync(1, 1), reply=True)))]
     return uplink, downlink
 
 
