@@ -12,6 +12,8 @@ the simulator's settings.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +47,19 @@ class SensorSpec:
                    accel_bias_initial_sigma=imu.accel_bias_initial_sigma,
                    gyro_bias_initial_sigma=imu.gyro_bias_initial_sigma,
                    mocap_position_sigma_m=room.position_noise_m, mocap_attitude_sigma_rad=room.attitude_noise_rad)
+
+
+def subsampled(spec: SensorSpec, native_rate_hz: float, sample_rate_hz: float) -> SensorSpec:
+    """The spec of an IMU stream made of every (native / sample)-th sample of an IMU sampled at native_rate_hz
+    (a Crazyflie's log block reading its sensors every 10 ms): each sample keeps the native sample's white
+    noise, variance density^2 native_rate, where a stream sampled at sample_rate would have density^2
+    sample_rate, so its density is density sqrt(native / sample). The bias walks are not sampled: unchanged."""
+    if sample_rate_hz >= native_rate_hz:
+        return spec
+    factor = math.sqrt(native_rate_hz / sample_rate_hz)
+    return dataclasses.replace(spec, name=f"{spec.name}, sampled at {sample_rate_hz:g} of {native_rate_hz:g} Hz",
+                               accel_noise_density=spec.accel_noise_density * factor,
+                               gyro_noise_density=spec.gyro_noise_density * factor)
 
 
 def load_sensor_spec(name_or_path: str | Path = DEFAULT_SENSOR_SPEC) -> SensorSpec:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.eskf import ErrorStateKF
-from estimator.sensor_spec import SensorSpec, load_sensor_spec
+from estimator.sensor_spec import SensorSpec, load_sensor_spec, subsampled
 from groundstation.clocks import LockstepClock, RealtimeClock
 from groundstation.compensation import LatencyCompensator
 from groundstation.controller import SE3Controller, load_gains
@@ -134,7 +134,8 @@ def run_session(opts: SessionOptions) -> SessionResult:
                 clock_transport = None
                 clock = RealtimeClock(period, link)
             clock_box["clock"] = clock
-            estimator = ErrorStateKF(opts.sensor_spec, imu_rate_hz)
+            # a log block's IMU is every n-th sample of the vehicle's: each carries that sample's noise
+            estimator = ErrorStateKF(subsampled(opts.sensor_spec, vehicle.imu.rate_hz, imu_rate_hz), imu_rate_hz)
             gains = load_gains(opts.gains)
             controller = SE3Controller(vehicle, gains, variant=opts.controller_variant)
             if opts.user_code is not None:  # the user's SE3Control; ours stays as its failsafe

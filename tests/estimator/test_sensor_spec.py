@@ -4,10 +4,11 @@ import math
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from estimator.eskf import ErrorStateKF
-from estimator.sensor_spec import DEFAULT_SENSOR_SPEC, SensorSpec, load_sensor_spec
+from estimator.sensor_spec import DEFAULT_SENSOR_SPEC, SensorSpec, load_sensor_spec, subsampled
 from model.errors import ConfigError
 from model.vehicle import load_mocap_room, load_vehicle
 
@@ -53,3 +54,16 @@ def test_bad_spec_file_is_one_line_naming_the_field(tmp_path) -> None:
     assert "\n" not in message and "bad.toml" in message and "accel_noise_density_mps2_per_rthz" in message
     with pytest.raises(ConfigError, match="unknown sensor specification 'nope'"):
         load_sensor_spec("nope")
+
+
+def test_every_fifth_sample_of_500_hz_noise_is_100_hz_noise_of_sqrt_5_the_density():
+    spec = load_sensor_spec()
+    stream = subsampled(spec, native_rate_hz=500.0, sample_rate_hz=100.0)
+    # white noise of density d sampled at f has per-sample variance d^2 f (what the filter assumes of a stream)
+    rng = np.random.default_rng(3)
+    native = rng.normal(0.0, spec.accel_noise_density * math.sqrt(500.0), size=500_000)
+    every_fifth = native[::5]
+    assert every_fifth.var() == pytest.approx(stream.accel_noise_density**2 * 100.0, rel=0.02)
+    assert stream.gyro_noise_density == pytest.approx(spec.gyro_noise_density * math.sqrt(5.0))
+    assert stream.accel_bias_random_walk == spec.accel_bias_random_walk  # a walk is not sampled
+    assert subsampled(spec, 500.0, 500.0) is spec
