@@ -5,6 +5,7 @@ checks, reproduces a seed exactly, and holds a hover in both command modes throu
 import hashlib
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
 import numpy as np
@@ -121,12 +122,16 @@ def test_a_reboot_brings_back_the_faithful_firmware():
 @pytest.fixture(scope="module")
 def hovers(tmp_path_factory):
     folder = tmp_path_factory.mktemp("cf_hover")
-    out = {}
-    for mode in ("moments", "attitude"):
+
+    def fly(name: str):
+        mode = name.split("_")[0]  # "moments_again": the same flight again, for the per-seed identity
         run = cfstack("fly", "--trajectory", "hover", "--mode", mode, "--vehicle-model", "cf21", "--firmware",
-                      "crazyflie", "--seed", "3", "--json", "--log", str(folder / mode))
-        out[mode] = (run, json.loads(run.stdout) if run.stdout.strip() else None, folder / mode)
-    return out
+                      "crazyflie", "--seed", "3", "--json", "--log", str(folder / name))
+        return run, json.loads(run.stdout) if run.stdout.strip() else None, folder / name
+
+    with ThreadPoolExecutor(3) as pool:  # at once: each lockstep flight keeps about one core busy
+        futures = {name: pool.submit(fly, name) for name in ("moments", "attitude", "moments_again")}
+        return {name: future.result() for name, future in futures.items()}
 
 
 @pytest.mark.parametrize("mode", ["moments", "attitude"])
@@ -137,11 +142,9 @@ def test_the_faithful_vehicle_hovers_within_a_centimetre(hovers, mode):
     assert summary["rms_tracking_error_m"] <= HOVER_RMS_TARGET_M
 
 
-def test_a_faithful_lockstep_flight_is_byte_identical_per_seed(hovers, tmp_path):
+def test_a_faithful_lockstep_flight_is_byte_identical_per_seed(hovers):
     _, _, first = hovers["moments"]
-    again = tmp_path / "again"
-    run = cfstack("fly", "--trajectory", "hover", "--mode", "moments", "--vehicle-model", "cf21", "--firmware",
-                  "crazyflie", "--seed", "3", "--json", "--log", str(again))
+    run, _, again = hovers["moments_again"]
     assert run.returncode == 0, run.stderr
 
     def digest(folder):
