@@ -5,15 +5,21 @@ puts them).
 Gives out: SHARED_WORLDS, `shared_world(name)` (the file, or a visible skip saying why it is absent),
 `shared_world_params(*patterns)` (pytest parameters over the matching files, or one skipped parameter
 naming the missing folder, so the cases never vanish silently), `free_port(kind)` (the product's
-link.transports.base.free_loopback_port) and `cfstack(*args)` (the command as a user runs it: a
-subprocess, output captured, no stdin, a timeout).
+link.transports.base.free_loopback_port), `cfstack(*args)` (the command as a user runs it: a
+subprocess, output captured, no stdin, a timeout), `one_line_error(run)` (the refusal's single stderr line),
+`wait_for_text(path, text, timeout_s)`, and MAVProxy as the real GCS client: `MAVPROXY`, `needs_mavproxy`,
+`mavproxy(master, folder)`.
 Importable from every test module (pyproject.toml: pytest pythonpath = ["tests"]).
 """
 
 from __future__ import annotations
 
+import contextlib
+import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -51,3 +57,46 @@ def cfstack(*args: str, timeout: float = 240, **kw) -> subprocess.CompletedProce
     """`python -m cfstack ARGS` as a user runs it; stdout and stderr captured as text."""
     return subprocess.run([sys.executable, "-m", "cfstack", *args], capture_output=True, text=True,
                           timeout=timeout, stdin=subprocess.DEVNULL, **kw)
+
+
+def one_line_error(run: subprocess.CompletedProcess) -> str:
+    """The one stderr line of a command that refused (exit 2, the usage-error code); asserts both."""
+    assert run.returncode == 2, (run.returncode, run.stderr)
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1, run.stderr
+    return lines[0]
+
+
+def wait_for_text(path: Path, text: str, timeout_s: float) -> bool:
+    """True once `text` appears in the file at `path` (polled), False after timeout_s."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if path.exists() and text in path.read_text(errors="replace"):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+MAVPROXY = shutil.which("mavproxy.py")
+needs_mavproxy = pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed (pip install --no-deps "
+                                                             "mavproxy; .ci/run installs it)")
+
+
+@contextlib.contextmanager
+def mavproxy(master: str, folder: Path):
+    """MAVProxy as a user starts it headless (`--master=MASTER --daemon --non-interactive`); yields the file of its
+    output (folder/mavproxy.out; its tlog is folder/mav.tlog); on leaving, Ctrl-C, then a kill if it lingers."""
+    out = folder / "mavproxy.out"
+    with out.open("w") as sink:
+        proxy = subprocess.Popen([MAVPROXY, f"--master={master}", "--daemon", "--non-interactive",
+                                  f"--state-basedir={folder}", f"--logfile={folder / 'mav.tlog'}"],
+                                 cwd=folder, stdout=sink, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    try:
+        yield out
+    finally:
+        proxy.send_signal(signal.SIGINT)
+        try:
+            proxy.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proxy.kill()
+            proxy.wait()

@@ -6,59 +6,30 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import shutil
-import signal
 import socket
-import subprocess
 import threading
-import time
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import numpy as np
-import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
-from testsupport import cfstack, free_port
+from testsupport import cfstack, free_port, mavproxy, needs_mavproxy, wait_for_text
 
 from groundstation.logread import read_log
 from model.geodetic import load_origin
 
-MAVPROXY = shutil.which("mavproxy.py")
 GAINS_AND_SESSION_PARAMS = 15  # groundstation.gcs_forward.session_parameters: 3 of the session, 12 gains
 
 
-def _wait_for(path: Path, text: str, timeout_s: float) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if path.exists() and text in path.read_text(errors="replace"):
-            return True
-        time.sleep(0.1)
-    return False
-
-
-@pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed (pip install --no-deps mavproxy; .ci/run "
-                                             "installs it)")
+@needs_mavproxy
 def test_mavproxy_sees_the_vehicle_fly_where_the_log_says(tmp_path):
     port = free_port(socket.SOCK_DGRAM)
-    out = tmp_path / "mavproxy.out"
-    with out.open("w") as sink:
-        proxy = subprocess.Popen([MAVPROXY, f"--master=udp:127.0.0.1:{port}", "--daemon", "--non-interactive",
-                                  f"--state-basedir={tmp_path}", f"--logfile={tmp_path / 'mav.tlog'}"],
-                                 cwd=tmp_path, stdout=sink, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-    try:
-        assert _wait_for(out, "Waiting for heartbeat", 30.0), out.read_text()
+    with mavproxy(f"udp:127.0.0.1:{port}", tmp_path) as out:
+        assert wait_for_text(out, "Waiting for heartbeat", 30.0), out.read_text()
         flight = cfstack("fly", "--trajectory", "circle", "--log", str(tmp_path / "flight"),
                          "--gcs", f"udp:127.0.0.1:{port}", "--json")
         assert flight.returncode == 0, flight.stderr
-        assert _wait_for(out, f"Received {GAINS_AND_SESSION_PARAMS} parameters", 15.0), out.read_text()
-    finally:
-        proxy.send_signal(signal.SIGINT)
-        try:
-            proxy.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proxy.kill()
-            proxy.wait()
+        assert wait_for_text(out, f"Received {GAINS_AND_SESSION_PARAMS} parameters", 15.0), out.read_text()
     text = out.read_text()
     assert "Detected vehicle 1:1" in text and "ARMED" in text
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -24,11 +23,9 @@ from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mav
-from testsupport import cfstack, free_port
+from testsupport import cfstack, free_port, mavproxy, needs_mavproxy, one_line_error, wait_for_text
 
 from link.mavlink.tlog import read_tlog
-
-MAVPROXY = shutil.which("mavproxy.py")
 
 
 def _sha(path: Path) -> str:
@@ -76,30 +73,16 @@ class EmulatorProcess:
         return self.stderr_path.read_text()
 
 
-@pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed (pip install --no-deps mavproxy; .ci/run "
-                                             "installs it)")
+@needs_mavproxy
 def test_mavproxy_finds_the_vehicle_on_a_udp_radio_link(tmp_path):
     port = free_port(socket.SOCK_DGRAM)
     emulator = EmulatorProcess(tmp_path, f"udpin:127.0.0.1:{port}", seconds=60)
-    out = tmp_path / "mavproxy.out"
-    with out.open("w") as sink:  # MAVProxy speaks first (its GCS heartbeat), as a ground station does
-        proxy = subprocess.Popen([MAVPROXY, f"--master=udpout:127.0.0.1:{port}", "--daemon", "--non-interactive",
-                                  f"--state-basedir={tmp_path}", f"--logfile={tmp_path / 'mav.tlog'}"],
-                                 cwd=tmp_path, stdout=sink, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 40.0
-        while "Detected vehicle 1:1" not in out.read_text(errors="replace") and time.monotonic() < deadline:
-            assert emulator.proc.poll() is None, emulator.stderr_path.read_text()
-            time.sleep(0.2)
+    try:  # MAVProxy speaks first (its GCS heartbeat), as a ground station does
+        with mavproxy(f"udpout:127.0.0.1:{port}", tmp_path) as out:
+            detected = wait_for_text(out, "Detected vehicle 1:1", 40.0)
     finally:
-        proxy.send_signal(signal.SIGINT)
-        try:
-            proxy.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proxy.kill()
-            proxy.wait()
         log = emulator.stop()
-    assert "Detected vehicle 1:1" in out.read_text(errors="replace"), out.read_text()
+    assert detected, (out.read_text(), log)
     assert "udpin:127.0.0.1" in log  # the emulator says where its radio is
 
 
@@ -137,7 +120,4 @@ def test_the_emulator_speaks_mavlink_over_a_serial_line(tmp_path):
     (["groundstation", "--radio-link", "serial:/dev/ttyUSB0:57600", "--clock", "lockstep"], "--clock realtime"),
 ])
 def test_an_impossible_radio_link_is_one_line_and_a_non_zero_exit(command, named):
-    run = cfstack(*command, timeout=60)
-    assert run.returncode != 0
-    lines = run.stderr.strip().splitlines()
-    assert len(lines) == 1 and named in lines[0], run.stderr
+    assert named in one_line_error(cfstack(*command, timeout=60))
