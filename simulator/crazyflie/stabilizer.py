@@ -328,11 +328,7 @@ class CrazyflieFirmware(Firmware):
         if not self._auto_arm(arrival_s, values):
             return False
         setpoint = self.rpyt.decode(sp.roll_deg, sp.pitch_deg, sp.yaw_rate_dps, sp.thrust, priority_disabled=stale)
-        self.low_level_active = True
-        self._sp_arrival_s = arrival_s
-        self._sp_pid = setpoint
-        self._sp_thrust_n = setpoint.thrust_pwm / self._pwm_per_n  # what the watchdog's level-out keeps
-        self.mode = VehicleMode.ATTITUDE
+        self._hold_attitude_setpoint(arrival_s, setpoint)
         return True
 
     def _take_manual(self, sp: crtp.Manual, arrival_s: float) -> bool:
@@ -364,12 +360,17 @@ class CrazyflieFirmware(Firmware):
         values = (*setpoint.attitude_deg, *setpoint.attitude_rate_dps, setpoint.thrust_pwm)
         if not self._auto_arm(arrival_s, values):
             return False
+        self._hold_attitude_setpoint(arrival_s, setpoint)
+        return True
+
+    def _hold_attitude_setpoint(self, arrival_s: float, setpoint: Setpoint) -> None:
+        """The PID setpoint from now on (a low-level one: it has the priority); its thrust, capped as the power
+        distribution caps it, is what the watchdog's level-out keeps."""
         self.low_level_active = True
         self._sp_arrival_s = arrival_s
         self._sp_pid = setpoint
         self._sp_thrust_n = min(setpoint.thrust_pwm, self.cf.curve.pwm_max) / self._pwm_per_n
         self.mode = VehicleMode.ATTITUDE
-        return True
 
     def _take_velocity(self, sp, arrival_s: float) -> bool:
         """Velocity world (x, y, z velocity) or hover (x, y velocity in the yaw frame, z absolute), yaw rate:
@@ -390,11 +391,11 @@ class CrazyflieFirmware(Firmware):
         """A setpoint with a yaw rate that the PID controller flies on the position estimate (its velocity or
         height): refused without a position estimate, as a position setpoint is. The held position (x, y
         where it is, height_m) is what a watchdog level-out holds."""
-        values = tuple(vars(sp).values())
-        if not all(math.isfinite(v) for v in values) or not self.position.valid:
+        if not self.position.valid:
             self.rejected_commands += 1
             return False
-        self._auto_arm(arrival_s, values)
+        if not self._auto_arm(arrival_s, tuple(vars(sp).values())):  # refuses (and counts) a non-finite one
+            return False
         self._sp_position = (self.position.p[0], self.position.p[1], height_m)
         self._sp_pid = Setpoint(modes, attitude_deg, (0.0, 0.0, sp.yaw_rate_dps), position_m=self._sp_position,
                                 velocity_mps=velocity_mps, velocity_body=velocity_body)
