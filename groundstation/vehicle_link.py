@@ -23,6 +23,7 @@ from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
 from link.mavlink.tlog import TlogWriter
 from link.messages import Received
 from link.transports import open_transport
+from link.transports.table import transport_options
 
 
 @dataclass
@@ -43,7 +44,7 @@ class VehicleLink:
         CrazyflieRadio) instead of MAVLink on the radio link; the tlog then stays empty (it is MAVLink's)."""
         opts = zenoh_options or {}
         radio_connection = connection if radio_link is None else radio_link
-        radio_opts = opts if radio_connection.startswith("zenoh") else {}
+        radio_opts = transport_options(radio_connection, opts)
         self.keys = keys
         self.clock = clock
         self.tlog = TlogWriter(tlog_path, buffered=True) if tlog_path and radio is None else None

@@ -31,7 +31,7 @@ from link.mavlink.codec import IFLAG_SIGNED, MAGIC_V2, MIN_FRAME_LEN, ActuatorLi
 from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
 from link.messages import ExternalPose, RadioStatus
 from link.transports import Transport, open_transport
-from link.transports.table import for_vehicle
+from link.transports.table import for_vehicle, transport_options
 from model.errors import UserError
 from model.world import World
 from simulator.crtp_service import CrtpService
@@ -151,9 +151,9 @@ class VehicleNode:
 
     # --- transports -----------------------------------------------------------------------------
     def open(self, config: EmulatorConfig) -> None:
-        opts = config.zenoh_options if config.connection.startswith("zenoh") else {}
+        opts = transport_options(config.connection, config.zenoh_options)
         radio = config.connection if config.radio_link is None else for_vehicle(config.radio_link, self.vehicle_id)
-        radio_opts = config.zenoh_options if radio.startswith("zenoh") else {}
+        radio_opts = transport_options(radio, config.zenoh_options)
         try:
             self.link = open_transport(radio, tx=self.keys.downlink, rx=self.keys.uplink, **radio_opts)
             mocap = open_transport(config.connection, tx=self.keys.mocap, **opts)

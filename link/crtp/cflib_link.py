@@ -130,7 +130,6 @@ class CrazyflieRadio:
         self._last_z_m: float | None = None  # the newest extpose height (LAND's duration)
         self._ms_base = 0  # unwrapping the u24 millisecond clock
         self._last_ms = None
-        self._lost: str | None = None
 
     # --- the transport side (VehicleLink) ------------------------------------------------------
     def open(self) -> None:
@@ -250,9 +249,9 @@ class CrazyflieRadio:
             self._put(message, len(data))
 
     def _on_lost(self, _uri, msg) -> None:
-        self._lost = str(msg).strip().splitlines()[0] if str(msg).strip() else "no reason given"
-        if self.is_open:
-            log.warning("crtp: the link to %s was lost (%s)", self.uri, self._lost)
+        if self.is_open:  # cflib's message may carry a traceback: its first line says it
+            why = str(msg).strip().splitlines()[0] if str(msg).strip() else "no reason given"
+            log.warning("crtp: the link to %s was lost (%s)", self.uri, why)
 
     # --- what is sent ---------------------------------------------------------------------------------
     def send(self, message, target_system: int = 0) -> bytes:  # noqa: ARG002 - Endpoint's signature

@@ -42,6 +42,12 @@ def parse_connection(connection: str) -> tuple[str, str]:
     return scheme, address
 
 
+def transport_options(connection: str, zenoh_options: dict) -> dict:
+    """The options open_transport takes for `connection`: the zenoh session's for a zenoh connection, none for
+    the others (they take none of zenoh's)."""
+    return zenoh_options if parse_connection(connection)[0] == "zenoh" else {}
+
+
 def for_vehicle(connection: str, vehicle_id: int) -> str:
     """The connection string of vehicle `vehicle_id`'s own link, from the one given for the fleet: keyed
     schemes carry every vehicle on one address (the keys tell them apart); UDP gives vehicle N the port
