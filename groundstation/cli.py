@@ -264,8 +264,9 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
                         "position controller)")
     if args.radio_link is not None:
         check_radio_link(args.radio_link, 1, clock)  # the ground station's address is its own vehicle's
+    signing = signing_from_args(args)
     if args.link == "crtp":
-        _check_crtp(args, clock)
+        _check_crtp(args, clock, signing)
     elif args.uri is not None:
         raise UserError("argument --uri: a cflib URI is for --link crtp")
     return SessionOptions(
@@ -279,14 +280,14 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
         controller_variant=_controller_variant(args), user_code=user_code,
         latency_compensation=(args.latency_compensation if args.latency_compensation is not None
                               else COMPENSATION_DEFAULT[args.mode]), log_dir=Path(args.log) if args.log else None,
-        signing=signing_from_args(args), plan=plan,
+        signing=signing, plan=plan,
         # fly and step know which emulated firmware they started; a ground station alone does not
         extra_summary={**extra, **({"firmware": args.firmware, "vehicle_draw": args.vehicle_draw}
                                    if hasattr(args, "firmware") else {})},
         allow_reset=getattr(args, "reset", False), extpose=_extpose(args), displays=_displays(args))
 
 
-def _check_crtp(args, clock: str) -> None:
+def _check_crtp(args, clock: str, signing) -> None:
     """--link crtp: what it can fly (one line for what it cannot)."""
     if importlib.util.find_spec("cflib") is None:
         raise UserError("argument --link crtp: needs Bitcraze's cflib (pip install \"cfstack[cflib]\")")
@@ -298,7 +299,7 @@ def _check_crtp(args, clock: str) -> None:
                         "itself: README, cflib scripts against the emulator)")
     if args.radio_link is not None:
         raise UserError("argument --radio-link: the Crazyflie link's transport is cflib's, named by --uri")
-    if signing_from_args(args) is not None:
+    if signing is not None:
         raise UserError("argument --signing-key-file: CRTP has no signing (MAVLink's)")
     if args.uri is not None and "://" not in args.uri:
         raise UserError(f"argument --uri: '{args.uri}' is not a cflib URI (e.g. udp://127.0.0.1:19850, "

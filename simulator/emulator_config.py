@@ -94,4 +94,3 @@ class EmulatorConfig:
             outage.check("radio cut")
         for outage in self.mocap_cuts:
             outage.check("mocap cut")
-
