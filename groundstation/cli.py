@@ -110,12 +110,12 @@ def _flight_arguments(p: argparse.ArgumentParser) -> None:
                         "step start their emulator on the far end (udpin <-> udpout)")
     g.add_argument("--link", choices=("mavlink", "crtp"), default="mavlink",
                    help="the radio's protocol: mavlink (default) or crtp, a Crazyflie's own, through cflib "
-                        "(--uri; realtime clock, moments or attitude mode; README, the ground station's Crazyflie "
-                        "link)")
+                        "(--uri; moments or attitude mode; README, the ground station's Crazyflie link)")
     g.add_argument("--uri", metavar="URI",
                    help="with --link crtp: the Crazyflie's cflib URI, e.g. radio://0/80/2M/E7E7E7E7E7 or "
-                        "udp://127.0.0.1:19850 (default: the emulator's, udp://127.0.0.1:19850+N-1; fly and step: "
-                        "their own emulator's)")
+                        "udp://127.0.0.1:19850 (realtime), or zenoh://PREFIX/N (either clock; default: the "
+                        "emulator's vehicle N, zenoh://PREFIX/N in lockstep, udp://127.0.0.1:19850+N-1 in realtime; "
+                        "fly and step: their own emulator's)")
     d = p.add_argument_group("displays")
     d.add_argument("--view", action="store_true", help="show the flight live in the rerun viewer (spawned)")
     d.add_argument("--view-save", metavar="FILE.rrd", help="record the live view to a file instead (headless, CI)")
@@ -160,8 +160,8 @@ def _emulator_arguments(p: argparse.ArgumentParser) -> None:
     """The emulator child that fly and step start."""
     g = p.add_argument_group("emulator child")
     g.add_argument("--radio", default="crazyradio", help="radio profile for the emulator: name or TOML file")
-    g.add_argument("--clock", choices=("lockstep", "realtime"),
-                   help="lockstep (default) or realtime (the default with --link crtp, which flies in realtime)")
+    g.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep (default) or realtime")
     g.add_argument("--seed", type=seed, default=1, help="seed of every random source (0, 1, 2, ...)")
     g.add_argument("--from-ground", action="store_true", help="take off from the floor below the start")
     g.add_argument("--firmware", choices=tuple(FIRMWARE_VEHICLES), default=DEFAULT_FIRMWARE,
@@ -182,8 +182,6 @@ def _parsed(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
     if resolution is not None and len(resolution) not in (1, 3):
         raise UserError(f"argument --resolution: give one value or three, not {len(resolution)} "
                         f"(see '{p.prog} --help')")
-    if "clock" in args and args.clock is None:  # fly and step: lockstep, unless the link cannot step
-        args.clock = "realtime" if getattr(args, "link", "mavlink") == "crtp" else "lockstep"
     if getattr(args, "vehicle_model", "") is None:
         args.vehicle_model = default_vehicle_model(getattr(args, "firmware", DEFAULT_FIRMWARE))
     level = logging.INFO if args.verbose else logging.WARNING
@@ -272,7 +270,7 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
     return SessionOptions(
         track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
         connection="zenoh", zenoh_options=zopts, radio_link=args.radio_link, link=args.link,
-        crtp_uri=args.uri or f"udp://{CRTP_HOST}:{DEFAULT_CRTP_PORT + args.vehicle - 1}", prefix=args.prefix,
+        crtp_uri=args.uri or _default_crtp_uri(args, clock), prefix=args.prefix,
         vehicle_id=args.vehicle,
         vehicle_model=args.vehicle_model, gains=args.gains,
         # loaded here: a bad file is one line before any process starts
@@ -287,13 +285,23 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
         allow_reset=getattr(args, "reset", False), extpose=_extpose(args), displays=_displays(args))
 
 
+def _default_crtp_uri(args, clock: str) -> str:
+    """The emulator's vehicle: on zenoh in lockstep, on CrazySim's UDP port in realtime."""
+    if clock == "lockstep":
+        return f"zenoh://{args.prefix}/{args.vehicle}"
+    return f"udp://{CRTP_HOST}:{DEFAULT_CRTP_PORT + args.vehicle - 1}"
+
+
 def _check_crtp(args, clock: str, signing) -> None:
     """--link crtp: what it can fly (one line for what it cannot)."""
     if importlib.util.find_spec("cflib") is None:
         raise UserError("argument --link crtp: needs Bitcraze's cflib (pip install \"cfstack[cflib]\")")
-    if clock != "realtime":
-        raise UserError("argument --link crtp: flies in realtime (--clock realtime); lockstep over CRTP is not "
-                        "built yet")
+    if args.uri is not None and "://" not in args.uri:
+        raise UserError(f"argument --uri: '{args.uri}' is not a cflib URI (e.g. udp://127.0.0.1:19850, "
+                        "radio://0/80/2M/E7E7E7E7E7)")
+    if clock == "lockstep" and args.uri is not None and not args.uri.startswith("zenoh://"):
+        raise UserError(f"argument --uri: '{args.uri}' cannot fly in lockstep: only zenoh://PREFIX/VEHICLE can "
+                        "(udp:// and radio:// fly with --clock realtime)")
     if args.mode == "position":
         raise UserError("argument --link crtp: not with --mode position (a cflib script flies position setpoints "
                         "itself: README, cflib scripts against the emulator)")
@@ -301,9 +309,13 @@ def _check_crtp(args, clock: str, signing) -> None:
         raise UserError("argument --radio-link: the Crazyflie link's transport is cflib's, named by --uri")
     if signing is not None:
         raise UserError("argument --signing-key-file: CRTP has no signing (MAVLink's)")
-    if args.uri is not None and "://" not in args.uri:
-        raise UserError(f"argument --uri: '{args.uri}' is not a cflib URI (e.g. udp://127.0.0.1:19850, "
-                        "radio://0/80/2M/E7E7E7E7E7)")
+    if args.uri is not None and args.uri.startswith("zenoh://"):
+        from link.crtp.zenoh_driver import parse_uri
+
+        try:
+            parse_uri(args.uri)
+        except UserError as err:
+            raise UserError(f"argument --uri: {err}") from None
 
 
 def _displays(args) -> Displays:
@@ -406,7 +418,8 @@ class EmulatorChild:
         if args.link == "crtp" and args.uri:
             raise UserError("argument --uri: fly and step fly the emulator they start (its URI is theirs); fly a "
                             "vehicle at a URI with `cfstack groundstation --link crtp --uri URI`")
-        self.crtp_port = free_loopback_port(socket.SOCK_DGRAM) if args.link == "crtp" else None
+        # realtime: on UDP, as a cflib user would; lockstep: on the vehicle's zenoh keys (always served)
+        self.crtp_port = free_loopback_port(socket.SOCK_DGRAM) if args.link == "crtp" and clock == "realtime" else None
         cmd += ["--crtp-port", "off" if self.crtp_port is None else str(self.crtp_port)]
         cmd += getattr(args, "emulator_extra", [])
         # stderr to a file, not a pipe: a pipe nobody reads during the flight could fill and stall the child

@@ -134,7 +134,8 @@ class LockstepClock:
     def wait(self) -> float:
         tick = self._next_tick()
         self.t_s = tick.time_s  # frames of this tick are received at its time (their ages depend on it)
-        target = (tick.downlink_published, tick.mocap_published, tick.truth_published)
+        radio = tick.crtp_published if self.link.speaks_crtp else tick.downlink_published
+        target = (radio, tick.mocap_published, tick.truth_published)
         self.link.fetch(0.0)
         deadline = time.monotonic() + self.wait_timeout_s
         while True:

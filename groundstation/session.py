@@ -301,9 +301,11 @@ def _link_summary(loop: FlightLoop) -> dict:
 def _crazyflie_radio(opts: SessionOptions, clock):
     """The opened cflib link to the Crazyflie at opts.crtp_uri (imported only for --link crtp)."""
     from groundstation.crtp_settings import load_crtp_link_settings
+    from link.crtp import zenoh_driver
     from link.crtp.cflib_link import CrazyflieRadio
 
-    radio = CrazyflieRadio(opts.crtp_uri, load_crtp_link_settings(), clock)
+    zenoh_driver.use_session(opts.connection, opts.zenoh_options)  # zenoh://: the ground network's session
+    radio = CrazyflieRadio(opts.crtp_uri, load_crtp_link_settings(), clock, lockstep=opts.clock == "lockstep")
     radio.open()
     return radio
 

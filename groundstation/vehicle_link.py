@@ -54,6 +54,7 @@ class VehicleLink:
                              FrameParser(codec, signing=signing), clock=clock, tlog=self.tlog,
                              shared_clock=shared_clock)
         self.radio = radio
+        self.speaks_crtp = getattr(radio, "protocol", "mavlink") == "crtp"  # a lockstep tick's count: crtp_published
         ground = Codec(system_id=GROUND_STATION_SYSTEM_ID, limits=limits)
         self.mocap = Endpoint(open_transport(connection, rx=keys.mocap, **opts), ground,
                               FrameParser(ground), clock=clock)

@@ -1,13 +1,15 @@
 """The lockstep simulation clock: a small protocol beside MAVLink, never subject to radio loss.
 
 Takes in: the emulator's tick (tick index, simulation time, how many samples it has published on each
-of a vehicle's keys so far; a sample holds one or more whole MAVLink frames) and a ground station's
-acknowledgement (tick index, how many uplink frames it has sent so far, when it next wants to be woken).
+of a vehicle's keys so far; a sample holds one or more whole MAVLink frames, or one CRTP packet) and a
+ground station's acknowledgement (tick index, how many uplink frames or CRTP packets it has sent so far,
+when it next wants to be woken).
 Gives out: fixed-size little-endian records for the clock keys (link.keys), and their decoding.
 
 Why counts: zenoh keeps order per key, not across keys. A ground station that has seen tick k waits
-until it holds `downlink_published` downlink samples, so it never computes on a partial tick; the
-emulator likewise waits for `uplink_sent` uplink frames before stepping on. That makes lockstep runs
+until it holds `downlink_published` downlink samples (`crtp_published` CRTP samples, if it speaks
+CRTP), so it never computes on a partial tick; the emulator likewise waits for `uplink_sent` uplink
+frames before stepping on. That makes lockstep runs
 byte-identical whatever the scheduling.
 """
 
@@ -16,9 +18,9 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-_TICK = struct.Struct("<4sqqqqq")
+_TICK = struct.Struct("<4sqqqqqq")
 _ACK = struct.Struct("<4sqqqqB")
-_TICK_MAGIC = b"CLK1"
+_TICK_MAGIC = b"CLK2"  # CLK1 had no crtp_published
 _ACK_MAGIC = b"ACK2"  # ACK1 had no period_ns
 NS_PER_S = 1_000_000_000
 
@@ -30,6 +32,7 @@ class ClockTick:
     downlink_published: int
     mocap_published: int
     truth_published: int
+    crtp_published: int = 0  # CRTP packets on the vehicle's crtp/downlink key (link.keys)
 
     @property
     def time_s(self) -> float:
@@ -37,7 +40,7 @@ class ClockTick:
 
     def pack(self) -> bytes:
         return _TICK.pack(_TICK_MAGIC, self.tick, self.time_ns, self.downlink_published,
-                          self.mocap_published, self.truth_published)
+                          self.mocap_published, self.truth_published, self.crtp_published)
 
 
 @dataclass(frozen=True)

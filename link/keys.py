@@ -28,6 +28,14 @@ class VehicleKeys:
         return f"{self.prefix}/vehicle/{self.vehicle_id}/downlink"
 
     @property
+    def crtp_uplink(self) -> str:  # ground station -> vehicle, CRTP packets (one per sample), through the radio
+        return f"{self.prefix}/vehicle/{self.vehicle_id}/crtp/uplink"
+
+    @property
+    def crtp_downlink(self) -> str:  # vehicle -> ground station, CRTP packets (one per sample), through the radio
+        return f"{self.prefix}/vehicle/{self.vehicle_id}/crtp/downlink"
+
+    @property
     def mocap(self) -> str:  # mocap system -> ground network (never over the radio)
         return f"{self.prefix}/mocap/{self.vehicle_id}"
 

@@ -140,6 +140,14 @@ def make_params(fw) -> list[Param]:
     ]
 
 
+@dataclass(frozen=True, slots=True)
+class CrtpDatagram:
+    """One CRTP packet the radio delivered, queued for the vehicle's next firmware cycle
+    (SimVehicle.handle_uplink), where its `crtp` services answer it."""
+
+    data: bytes
+
+
 @dataclass
 class LogBlock:
     variables: list[tuple[int, str]]  # (log TOC index, fetch type name)
@@ -161,6 +169,7 @@ class CrtpService:
         self.params = make_params(self.fw)
         self.param_toc = Toc("param", [p.entry for p in self.params])
         self.blocks: dict[int, LogBlock] = {}
+        self.last_extpos_s = -math.inf  # when the last extpos / extpose was taken
         self.counters: Counter[str] = Counter()
 
     def describe(self) -> str:
@@ -213,6 +222,8 @@ class CrtpService:
             self.counters["non_finite"] += 1
             return []
         self.sim.handle_uplink(record, t_s)
+        if isinstance(record, setpoints.ExternalPosition):
+            self.last_extpos_s = t_s  # a ground station streams the position: the positioning deck stands aside
         if isinstance(record, setpoints.SupervisorRequest) and record.kind in ("arm", "disarm"):
             # (command | 0x80, success, armed): what the arming will give at the firmware's next cycle
             armed = record.kind == "arm" and self.fw.mode.name != "CRASHED"

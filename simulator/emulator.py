@@ -124,7 +124,7 @@ class Emulator:
             for node in self.nodes:
                 node.receive_uplink(self.t_s)
                 if node.crtp is not None:
-                    node.serve_crtp(self.t_s)
+                    node.receive_crtp(self.t_s)
             self.step_all()
             for node in self.nodes:
                 node.outbox.send(node.outbox.take_due(self.steps))

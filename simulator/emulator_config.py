@@ -52,7 +52,10 @@ class EmulatorConfig:
     profile: bool = False  # accumulate per-part wall time in Emulator.timing_s (benchmarks)
     radio_cuts: tuple[Outage, ...] = ()  # every radio frame offered inside these windows is dropped
     mocap_cuts: tuple[Outage, ...] = ()  # no mocap frame is published inside these windows
-    # CRTP for cflib clients (simulator.crtp_service): vehicle N answers on udp 127.0.0.1:crtp_base_port+N-1
+    # CRTP on each vehicle's zenoh keys (link.keys crtp_uplink / crtp_downlink), with the crazyflie firmware and
+    # a keyed connection, in either clock (a cflib client through link.crtp.zenoh_driver)
+    crtp_keys: bool = True
+    # CRTP for cflib clients over UDP (simulator.crtp_service): vehicle N answers on udp 127.0.0.1:crtp_base_port+N-1
     # (CrazySim's convention: the first at 19850), realtime clock and crazyflie firmware only; None: off
     crtp_base_port: int | None = None
     crtp_host: str = "127.0.0.1"

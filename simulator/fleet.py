@@ -4,9 +4,27 @@ Takes in: the EmulatorConfig, a vehicle id and its seed; uplink samples from the
 in-process); the step count of each physics step.
 Gives out: per step, the vehicle's frames in its Outbox (downlink through the downlink radio, mocap and
 truth on the ground network), RADIO_STATUS once a second, a crash reported once; per-part timing when
-profiled. With CRTP on (config.crtp_base_port), a UDP endpoint per vehicle for cflib clients
-(simulator.crtp_service, served by `serve_crtp` each realtime step) and the positioning deck: each mocap
-frame into the onboard estimator at its release time while no ground station streams extpose.
+profiled. With the crazyflie firmware, CRTP (simulator.crtp_service) on the vehicle's CRTP keys
+(link.keys crtp_uplink / crtp_downlink, in both clocks) and, with config.crtp_base_port, on a UDP
+endpoint per vehicle for cflib clients (realtime), then also the positioning deck: each mocap frame
+into the onboard estimator at its release time while no ground station streams extpose.
+
+CRTP crosses radios of its own (the profile's, seeded after the MAVLink ones). A packet the air loses
+is offered again one physics step later, and the ones behind it wait (head of line): cflib's radio
+driver resends a packet until it is acknowledged, giving up after CRTP_LINK_ATTEMPTS, and the
+Crazyflie's reply rides on an acknowledgement that is resent with it. So CRTP is delayed, not lost, by
+the air (the UDP driver alone would never resend). A corrupted copy fails the radio's CRC. Every
+attempt's time is decided when the packet is offered (each attempt one step after the last, never
+before the previous packet's), so the result does not depend on when steps run (lockstep lookahead).
+The vehicle serves what arrives at its next firmware cycle (SimVehicle: CrtpDatagram).
+
+Lockstep and CRTP. Every sample on the CRTP uplink key but a null packet counts as the ground station's
+(CRTP names no sender): a ground station's acks count its CRTP packets as its uplink frames, except the
+null packets its link sends to find the emulator (some are lost before the sessions meet), and it
+speaks one protocol on its radio. CRTP a lockstep ack has not yet accounted for in flight - a vehicle's traffic
+before its ground station joins (a cflib connect: TOCs, parameters, log blocks), and any while no
+ground station of it takes part - is answered at once, off the air: simulation time may stand
+still meanwhile (nobody steps it), and the join must not depend on which key's samples came first.
 `default_starts` places a fleet: vehicle 1 at the world's start, the others 0.5 m apart.
 
 Foreign uplink frames. Anyone may publish on a vehicle's uplink key. Every sample is offered to the
@@ -26,19 +44,20 @@ from collections import defaultdict, deque
 
 import numpy as np
 
+from link.crtp.packet import is_null
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
 from link.mavlink.codec import IFLAG_SIGNED, MAGIC_V2, MIN_FRAME_LEN, ActuatorLimits, Codec, FrameParser
 from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck
 from link.messages import ExternalPose, RadioStatus
 from link.transports import Transport, open_transport
-from link.transports.table import for_vehicle, transport_options
+from link.transports.table import KEYED_SCHEMES, for_vehicle, parse_connection, transport_options
 from model.errors import UserError
 from model.world import World
-from simulator.crtp_service import CrtpService
+from simulator.crtp_service import CrtpDatagram, CrtpService
 from simulator.emulator_config import EmulatorConfig
 from simulator.faults import covered
 from simulator.profiling import time_parts
-from simulator.publishing import DOWNLINK, MOCAP, TRUTH, Outbox
+from simulator.publishing import CRTP, DOWNLINK, MOCAP, TRUTH, Outbox
 from simulator.radio import RadioChannel
 from simulator.vehicle_sim import SimVehicle
 
@@ -48,6 +67,7 @@ RADIO_STATUS_PERIOD_S = 1.0  # RADIO_STATUS once a second, as SiK radios report 
 STEP_TOTAL = "step"  # profiled: a whole VehicleNode.step, the parts included
 DECK_YIELD_S = 1.0  # the positioning deck stands aside while a ground station's extpose is this fresh
 CRTP_LINK_ATTEMPTS = 100  # cflib radiodriver.py _nr_of_retries: unacknowledged sends before "Too many packets lost"
+UPLINK, DOWNLINK_DIRECTION = 0, 1  # the CRTP radios
 
 
 class GroundFrameGate:
@@ -117,8 +137,7 @@ class VehicleNode:
                                               name=f"crtp uplink {vehicle_id}", keep_ledger=config.keep_ledger)
         self.crtp_downlink_radio = RadioChannel(config.radio, np.random.default_rng(crtp_down_seed),
                                                 name=f"crtp downlink {vehicle_id}", keep_ledger=config.keep_ledger)
-        self._crtp_up: deque[list] = deque()  # [packet, attempts] not yet on the air, in order
-        self._crtp_down: deque[list] = deque()
+        self._crtp_last_try_s = [-math.inf, -math.inf]  # uplink, downlink: the latest attempt's time
         self.crtp_lost = 0  # packets given up after CRTP_LINK_ATTEMPTS failed attempts
         limits = ActuatorLimits.from_vehicle(config.vehicle)
         self.codec = Codec(system_id=vehicle_id, limits=limits, signing=config.signing)
@@ -128,7 +147,8 @@ class VehicleNode:
         self.gate = GroundFrameGate(require_signed=config.signing is not None, signing=gate_signing)
         self.outbox = Outbox()
         self.uplink_in = 0  # the ground station's uplink frames taken from the transport (GroundFrameGate)
-        self.held_uplink: deque[tuple[bytes, int]] = deque()  # lockstep: (sample, its frames of ours), not yet offered
+        # lockstep: (sample, its frames of ours, CRTP or not), not yet offered
+        self.held_uplink: deque[tuple[bytes, int, bool]] = deque()
         self.uplink_released = 0  # the ground station's frames offered to the radio from held_uplink
         self.uplink_foreign = 0  # uplink samples with none of its frames (another publisher on the key)
         self.radio_cuts = config.radio_cuts
@@ -141,11 +161,15 @@ class VehicleNode:
         self.timing_s: dict[str, float] = defaultdict(float)
         self.link: Transport | None = None  # tx downlink, rx uplink
         self.clock: Transport | None = None  # tx clock, rx clock_ack
-        self.crtp: CrtpService | None = None  # cflib clients (config.crtp_base_port)
-        self.crtp_link: Transport | None = None
+        # CRTP services: with the crazyflie firmware (the emulated one is the only one that has them)
+        self.crtp = CrtpService(self.sim) if config.firmware == "crazyflie" else None
+        self.sim.crtp = self.crtp
+        self.crtp_keys: Transport | None = None  # CRTP on the vehicle's zenoh keys
+        self.crtp_link: Transport | None = None  # CRTP over UDP for cflib clients (realtime)
+        self._crtp_ground = False  # a CRTP sample came on the keys: a lockstep wait blocks on that key
         self._deck_fixes: deque[tuple[float, ExternalPose]] = deque()  # (release time, fix): outputs come in order
         self._ground_extpose_s = -math.inf  # when the ground station's last extpose arrived
-        self.position_deck = config.position_deck and config.crtp_base_port is not None
+        self.position_deck = config.position_deck and config.crtp_base_port is not None and self.crtp is not None
         if config.profile:
             self._profile()
 
@@ -158,9 +182,13 @@ class VehicleNode:
             self.link = open_transport(radio, tx=self.keys.downlink, rx=self.keys.uplink, **radio_opts)
             mocap = open_transport(config.connection, tx=self.keys.mocap, **opts)
             truth = open_transport(config.connection, tx=self.keys.truth, **opts)
-            self.outbox.senders = [self.link, mocap, truth]
+            self.outbox.senders = [self.link, mocap, truth, None]
             self.clock = open_transport(config.connection, tx=self.keys.clock, rx=self.keys.clock_ack, **opts)
-            if config.crtp_base_port is not None:
+            if self.crtp is not None and config.crtp_keys and parse_connection(config.connection)[0] in KEYED_SCHEMES:
+                self.crtp_keys = open_transport(config.connection, tx=self.keys.crtp_downlink,
+                                                rx=self.keys.crtp_uplink, **opts)
+                self.outbox.senders[CRTP] = self.crtp_keys
+            if config.crtp_base_port is not None and self.crtp is not None:
                 self._open_crtp(config)
         except BaseException:
             self.close()
@@ -179,43 +207,38 @@ class VehicleNode:
             raise UserError(f"crtp: vehicle {self.vehicle_id} cannot serve cflib on udp {config.crtp_host}:{port} "
                             f"({err}); choose another base with --crtp-port or turn it off with --crtp-port off") \
                 from None
-        self.crtp = CrtpService(self.sim)
 
-    def serve_crtp(self, t_s: float) -> None:
-        """Realtime, once per step: the cflib client's datagrams cross the uplink radio, what arrives is
-        answered, the answers and the log blocks due cross the downlink radio, what arrives is sent.
+    def receive_crtp(self, t_s: float) -> None:
+        """Realtime, once per step: the CRTP packets that arrived (UDP datagrams, samples on the keys) go
+        on the air at t_s."""
+        for medium in (self.crtp_link, self.crtp_keys):
+            if medium is not None:
+                for packet in medium.receive(0.0):
+                    self._offer_crtp(UPLINK, packet, t_s)
 
-        A packet the radio loses is offered again at the next step, and the ones behind it wait (head of
-        line): cflib's radio driver resends a packet until it is acknowledged, giving up after
-        CRTP_LINK_ATTEMPTS, and the Crazyflie's reply rides on an acknowledgement that is resent with it.
-        So CRTP is delayed, not lost, by the air (the UDP driver alone would never resend). A corrupted
-        copy fails the radio's CRC and is discarded."""
-        for datagram in self.crtp_link.receive(0.0):
-            self._crtp_up.append([datagram, 0])
-        self._offer_crtp(self.crtp_uplink_radio, self._crtp_up, t_s)
-        for packet in self.crtp_uplink_radio.pop_due(t_s, discard_corrupted=True):
-            self._crtp_down.extend([reply, 0] for reply in self.crtp.handle(packet, t_s))
-        self._crtp_down.extend([packet, 0] for packet in self.crtp.due(t_s))
-        self._offer_crtp(self.crtp_downlink_radio, self._crtp_down, t_s)
-        for packet in self.crtp_downlink_radio.pop_due(t_s, discard_corrupted=True):
-            self.crtp_link.send(packet)
-
-    def _offer_crtp(self, radio: RadioChannel, pending: deque, t_s: float) -> None:
-        """Put waiting packets on the air in order until one is lost (it is tried again next step)."""
-        cut = bool(self.radio_cuts) and covered(self.radio_cuts, t_s)
-        while pending:
-            entry = pending[0]
-            if not cut and radio.push(entry[0], t_s):
-                pending.popleft()
-                continue
-            entry[1] += 1
-            if entry[1] < CRTP_LINK_ATTEMPTS:
-                return
-            pending.popleft()
+    def _offer_crtp(self, direction: int, packet: bytes, t_s: float) -> None:
+        """One CRTP packet on the air at t_s (uplink or downlink), tried again a physics step later while
+        the air loses it, never before the previous packet's last attempt (see the module docstring)."""
+        radio = self.crtp_uplink_radio if direction == UPLINK else self.crtp_downlink_radio
+        attempt_s = max(t_s, self._crtp_last_try_s[direction])
+        for attempt in range(CRTP_LINK_ATTEMPTS):
+            if attempt:
+                attempt_s += self.sim.dynamics.dt_s
+            cut = bool(self.radio_cuts) and covered(self.radio_cuts, attempt_s)
+            if not cut and radio.push(packet, attempt_s):
+                break
+        else:
             self.crtp_lost += 1
+        self._crtp_last_try_s[direction] = attempt_s
+
+    def _answer_off_air(self, packet: bytes, t_s: float) -> None:
+        """A CRTP packet no lockstep ack accounts for in flight: served now, the replies published now."""
+        replies = self.crtp.handle(packet, t_s)
+        if replies:
+            self.outbox.send([(CRTP, reply) for reply in replies])
 
     def close(self) -> None:
-        for transport in (*self.outbox.senders, self.link, self.clock, self.crtp_link):
+        for transport in (*self.outbox.senders, self.link, self.clock, self.crtp_link):  # (crtp_keys: a sender)
             if transport is not None:
                 transport.close()
 
@@ -236,10 +259,21 @@ class VehicleNode:
     def take_uplink(self, timeout_s: float = 0.0) -> int:
         """Lockstep: take the uplink samples that have arrived, count the ground station's frames among
         them, and hold them until its acks account for them (release_uplink)."""
-        samples = self.link.receive(timeout_s)
+        crtp_keys = self.crtp_keys
+        wait_on_crtp = crtp_keys is not None and self._crtp_ground  # a ground station that speaks CRTP
+        samples = self.link.receive(0.0 if wait_on_crtp else timeout_s)
         for sample in samples:
-            self.held_uplink.append((sample, self._count_arrival(sample)))
-        return len(samples)
+            self.held_uplink.append((sample, self._count_arrival(sample), False))
+        if crtp_keys is None:
+            return len(samples)
+        packets = crtp_keys.receive(timeout_s if wait_on_crtp else 0.0)
+        for packet in packets:  # CRTP names no sender: every packet counts but a null packet (a link probe)
+            ours = 0 if is_null(packet) else 1
+            self.uplink_in += ours
+            self.held_uplink.append((packet, ours, True))
+        if packets:
+            self._crtp_ground = True
+        return len(samples) + len(packets)
 
     def _count_arrival(self, sample: bytes) -> int:
         """The ground station's frames in an arriving uplink sample (GroundFrameGate), counted."""
@@ -249,15 +283,21 @@ class VehicleNode:
             self.uplink_foreign += 1
         return ours
 
-    def release_uplink(self, sent: float, push_time_s: float) -> None:
+    def release_uplink(self, sent: float, push_time_s: float, off_air: bool = False) -> None:
         """Offer held samples, in arrival order, to the radio at push_time_s while the ground station's
         frames among them stay within `sent` (its ack's count); a foreign sample goes with them.
-        sent = uplink_released: only the foreign samples at the head; math.inf: every held sample."""
+        sent = uplink_released: only the foreign samples at the head; math.inf: every held sample.
+        off_air: CRTP packets among them are answered at once, off the air (see the module docstring)."""
         held = self.held_uplink
         while held and self.uplink_released + held[0][1] <= sent:
-            sample, ours = held.popleft()
+            sample, ours, is_crtp = held.popleft()
             self.uplink_released += ours
-            self._offer_uplink((sample,), push_time_s)
+            if not is_crtp:
+                self._offer_uplink((sample,), push_time_s)
+            elif off_air:
+                self._answer_off_air(sample, push_time_s)
+            else:
+                self._offer_crtp(UPLINK, sample, push_time_s)
 
     def _offer_uplink(self, frames, push_time_s: float) -> None:
         """Into the uplink radio at push_time_s, unless a radio cut covers that time."""
@@ -289,6 +329,9 @@ class VehicleNode:
         due = self.uplink_radio.pop_due(t)  # [] at once when nothing is due (the radio's own check)
         if due:
             self._deliver_uplink(due, t)
+        if self.crtp is not None:
+            for packet in self.crtp_uplink_radio.pop_due(t, discard_corrupted=True):
+                sim.handle_uplink(CrtpDatagram(packet), t)
         sim.step()
         t = sim.t_s
         outbox = self.outbox.queue
@@ -300,8 +343,10 @@ class VehicleNode:
                     outbox.append((step_no, MOCAP, self.ground_codec.encode(message)))
                 if self.position_deck:
                     self._queue_deck_fix(message, release_s)
-            else:
+            elif channel == "truth":
                 outbox.append((step_no, TRUTH, self.ground_codec.encode(message)))
+            else:
+                self._offer_crtp(DOWNLINK_DIRECTION, message, release_s)
         self._finish_step(t, step_no)
 
     def _queue_deck_fix(self, pose, release_s: float) -> None:
@@ -311,9 +356,10 @@ class VehicleNode:
         """The positioning deck's fixes released by t into the onboard estimator, unless the ground station
         streamed extpose within the last DECK_YIELD_S (then its poses are the vehicle's position source)."""
         fixes = self._deck_fixes
+        ground_s = max(self._ground_extpose_s, self.crtp.last_extpos_s)
         while fixes and fixes[0][0] <= t:
             _, fix = fixes.popleft()
-            if t - self._ground_extpose_s > DECK_YIELD_S:
+            if t - ground_s > DECK_YIELD_S:
                 self.sim.firmware.take_position_fix(fix, t)
 
     def _finish_step(self, t: float, step_no: int) -> None:
@@ -326,6 +372,11 @@ class VehicleNode:
         outbox = self.outbox.queue
         for frame in self.downlink_radio.pop_due(t):
             outbox.append((step_no, DOWNLINK, frame))
+        if self.crtp is not None:
+            for packet in self.crtp_downlink_radio.pop_due(t, discard_corrupted=True):
+                outbox.append((step_no, CRTP, packet))
+                if self.crtp_link is not None:  # a cflib client over UDP (realtime)
+                    self.crtp_link.send(packet)
         sim = self.sim
         if sim.reboots != self.reboots_seen:
             self._report_reboot(t)

@@ -74,7 +74,8 @@ class Participant:
     period_ns: int  # its standing period (ClockAck.period_ns; 0: none)
     complete: int  # the last tick whose uplink frames are all in and offered to the radio
     fresh: bool = True  # joined, no tick acknowledged yet: its standing period does not apply yet
-    pending: deque = field(default_factory=deque)  # (tick, uplink_sent) of acks whose frames are not all in
+    # (tick, uplink_sent, joining) of acks whose frames are not all in; a join's CRTP is answered off the air
+    pending: deque = field(default_factory=deque)
 
 
 class Lockstep:
@@ -105,7 +106,7 @@ class Lockstep:
                 wake_ns = round(tick_steps * dt_s * NS_PER_S)
                 p = self.participants[vehicle_id] = Participant(tick, wake_ns, ack.period_ns, tick - 1)
                 self.tick_steps.setdefault(tick, tick_steps)
-                p.pending.append((tick, ack.uplink_sent))
+                p.pending.append((tick, ack.uplink_sent, True))
             return
         if p is None or ack.tick != p.acked + 1 or ack.tick > tick:
             return  # not a participant, or not the answer to the tick it is on (a repeat, say)
@@ -113,7 +114,7 @@ class Lockstep:
         p.wake_ns = ack.next_wakeup_ns
         p.period_ns = ack.period_ns
         p.fresh = False
-        p.pending.append((ack.tick, ack.uplink_sent))
+        p.pending.append((ack.tick, ack.uplink_sent, False))
 
     def release(self, nodes: list[VehicleNode], dt_s: float) -> None:
         """Offer each participant's held uplink samples to its radio at the time of the tick they
@@ -121,9 +122,9 @@ class Lockstep:
         for vid, p in self.participants.items():
             node = nodes[vid - 1]
             while p.pending:
-                tick, sent = p.pending[0]
+                tick, sent, joining = p.pending[0]
                 t_s = self.tick_steps[tick] * dt_s
-                node.release_uplink(sent, t_s)
+                node.release_uplink(sent, t_s, off_air=joining)
                 if node.uplink_released < sent:
                     break
                 p.pending.popleft()
@@ -150,6 +151,7 @@ class LockstepClock:
         self.first_tick_wall: float | None = None  # monotonic time of tick 0, for rates
         self.wait_log_period_s = WAIT_LOG_PERIOD_S
         self._last_progress = time.monotonic()
+        self._join_wait = 0  # the vehicle whose CRTP key a wait for a join blocks on
         if emulator.config.profile:  # the transport's share: acks and uplink taken, blocked waiting, ticks sent
             time_parts(self, {"poll": "poll", "wait_briefly": "wait", "_send_ticks": "send"}, emulator.timing_s)
 
@@ -263,15 +265,23 @@ class LockstepClock:
                 lock.handle(node.vehicle_id, data, self.tick, self.tick_steps, emu.dt_s)
             node.take_uplink()
             if node.held_uplink and node.vehicle_id not in lock.participants:
-                node.release_uplink(math.inf, self.tick_time_s)  # nobody's acks account for them
+                node.release_uplink(math.inf, self.tick_time_s, off_air=True)  # nobody's acks account for them
         lock.release(emu.nodes, emu.dt_s)
 
     def wait_briefly(self) -> None:
         """Block a little on whatever the lockstep is waiting for: a join, an ack, or uplink frames."""
         emu, lock = self.emulator, self.lock
         if not lock.participants:
-            node = emu.nodes[0]
-            for data in node.clock.receive(JOIN_POLL_S):
+            # a cflib client connecting (off the air) must not wait JOIN_POLL_S per answer: block on the
+            # CRTP keys, one vehicle's at a time, and look for joins without blocking
+            self._join_wait = (self._join_wait + 1) % len(emu.nodes)
+            node = emu.nodes[self._join_wait]
+            if node.crtp_keys is not None:
+                node.take_uplink(JOIN_POLL_S)
+                timeout_s = 0.0
+            else:
+                node, timeout_s = emu.nodes[0], JOIN_POLL_S
+            for data in node.clock.receive(timeout_s):
                 lock.handle(node.vehicle_id, data, self.tick, self.tick_steps, emu.dt_s)
             return
         vid, p = min(lock.participants.items(), key=lambda item: item[1].complete)

@@ -1,11 +1,12 @@
 """Publishing: what a vehicle's steps produce, held until its tick and sent packed into few samples.
 
 Takes in: frames stamped with the step count at which a non-lookahead emulator would publish them, on
-three channels (downlink through the radio, mocap and truth on the ground network), and the transports
-to send them on.
+four channels (downlink through the radio, mocap and truth on the ground network, CRTP packets through
+the vehicle's CRTP radio), and the transports to send them on.
 Gives out: the samples on each transport, and the count of samples per channel that each lockstep clock
 tick announces (ClockTick). A tick's frames go out in one burst, packed per key into as few samples as
-possible (pack_samples), then the tick record, which counts samples.
+possible (pack_samples), then the tick record, which counts samples. CRTP packets have no length
+field, so each is a sample of its own (as each is a datagram over UDP).
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from link.transports import Transport
 # below a UDP datagram (65,507 B) and zenoh's default batch (65,535 B).
 MAX_SAMPLE_BYTES = 8192
 
-DOWNLINK, MOCAP, TRUTH = 0, 1, 2  # outbox channels, in ClockTick count order
+DOWNLINK, MOCAP, TRUTH, CRTP = 0, 1, 2, 3  # outbox channels, in ClockTick count order
+CHANNELS = 4
 
 
 class Outbox:
@@ -31,8 +33,8 @@ class Outbox:
 
     def __init__(self):
         self.queue: deque[tuple[int, int, bytes]] = deque()
-        self.published = [0, 0, 0]  # samples published per channel (DOWNLINK, MOCAP, TRUTH)
-        self.senders: list[Transport | None] = [None, None, None]  # per channel; None until opened
+        self.published = [0] * CHANNELS  # samples published per channel (DOWNLINK, MOCAP, TRUTH, CRTP)
+        self.senders: list[Transport | None] = [None] * CHANNELS  # per channel; None until opened (CRTP: off)
 
     def take_due(self, step_no: int) -> list[tuple[int, bytes]]:
         """(channel, frame) of every queued frame stamped at or before step_no, in order."""
@@ -46,12 +48,12 @@ class Outbox:
     def send(self, frames: list[tuple[int, bytes]]) -> None:
         """Publish frames, the ones of each channel packed into as few samples as MAX_SAMPLE_BYTES
         allows (in order), counting the samples in `published` (what the clock ticks announce)."""
-        batches: tuple[list[bytes], ...] = ([], [], [])
+        batches: tuple[list[bytes], ...] = ([], [], [], [])
         for channel, frame in frames:
             batches[channel].append(frame)
         for channel, batch in enumerate(batches):
-            if batch:
-                for sample in pack_samples(batch):
+            if batch and self.senders[channel] is not None:
+                for sample in (batch if channel == CRTP else pack_samples(batch)):
                     # counted only when the medium took it: a udpin radio link has no peer to send to until
                     # the ground station's first datagram, and a tick must not announce what never left
                     if self.senders[channel].send(sample):

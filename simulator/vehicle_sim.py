@@ -9,15 +9,18 @@ until the vehicle's clock reaches its release time:
   "mocap":    MocapPose (mocap rate; time_s = sample time, released latency_s later; dropped frames
               are simply absent);
   "truth":    TruthState (telemetry.truth_rate_hz; simulation only);
+  "crtp":     CRTP packets (bytes): the replies of the vehicle's CRTP services (`crtp`, set by the fleet)
+              to the CrtpDatagrams delivered, and its log blocks, both at firmware cycles;
 plus `crash` (None or a dynamics.Crash) and `truth` (the current TruthState). No transport here.
 
 Within a step at time t, in order: if the firmware is due (500 Hz), it takes every uplink message
 delivered by t from its radio queue, in delivery order, each stamped with the cycle's time t (the
-commander watchdog counts from it; a TIMESYNC request is answered with it), and ticks, setting the
-rotor command; sensors and telemetry due by t sample the state at t (stamped t), then the
-physics integrates to t + dt. Periodic tasks run on an integer schedule k / rate (no drift), sampled at
-the first physics step at or after each due time; a step with nothing due (half of them at 1 kHz physics
-and 500 Hz tasks) runs the physics alone. Everything random comes from the Generator passed in
+commander watchdog counts from it; a TIMESYNC request is answered with it; a CRTP packet is served by
+the vehicle's CRTP services, as the Crazyflie's CRTP tasks take it), and ticks, setting the rotor
+command, then the CRTP log blocks due are read; sensors and telemetry due by t sample the state at t
+(stamped t), then the physics integrates to t + dt. Periodic tasks run on an integer schedule k / rate
+(no drift), sampled at the first physics step at or after each due time; a step with nothing due (half
+of them at 1 kHz physics and 500 Hz tasks) runs the physics alone. Everything random comes from the Generator passed in
 (split into independent IMU and mocap streams), so the same seed gives identical outputs.
 
 airborne=True starts in flight: armed, rotors at hover speed, as if a hover ThrustMoment arrived at
@@ -39,6 +42,7 @@ from model.errors import UserError, WorldError
 from model.frames import rotate
 from model.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
 from model.world import World
+from simulator.crtp_service import CrtpDatagram
 from simulator.dynamics import Crash, QuadrotorDynamics
 from simulator.firmware import Firmware, FirmwareParams, load_firmware_params
 from simulator.profiling import time_parts
@@ -52,8 +56,8 @@ NS_PER_S = 1_000_000_000
 
 class Output(NamedTuple):
     release_time_s: float
-    channel: str  # "downlink", "mocap" or "truth"
-    message: Message
+    channel: str  # "downlink", "mocap", "truth" or "crtp"
+    message: Message  # (bytes on "crtp")
 
 
 class _Schedule:
@@ -119,6 +123,7 @@ class SimVehicle:
         self._truth = _Schedule(params.truth_rate_hz)
         self._heartbeat = _Schedule(params.heartbeat_rate_hz)
         self._battery = _Schedule(params.battery_rate_hz)
+        self.crtp = None  # simulator.crtp_service.CrtpService, when the fleet serves CRTP
         self._uplinks: list[tuple[float, int, Message]] = []
         self._uplink_seq = 0
         self._out: list[Output] = []  # in release order (everything in it is stamped with its step's time)
@@ -183,6 +188,8 @@ class SimVehicle:
                 if self._uplinks and self._uplinks[0][0] <= t + _EPS_S:
                     self._deliver_due(t)
                 self._tick_firmware(t)
+                if self.crtp is not None and self.crtp.blocks:
+                    self._out.extend(Output(t, "crtp", packet) for packet in self.crtp.due(t))
                 if self.firmware.reboot_requested:
                     self.reboot()
                     d = self.dynamics
@@ -269,6 +276,9 @@ class SimVehicle:
             self._deliver(heapq.heappop(queue)[2], t)
 
     def _deliver(self, message: Message, cycle_s: float) -> None:
+        if type(message) is CrtpDatagram:
+            self._out.extend(Output(cycle_s, "crtp", reply) for reply in self.crtp.handle(message.data, cycle_s))
+            return
         if isinstance(message, TimeSync):
             self.firmware.count_uplink(cycle_s)  # every uplink message counts, TIMESYNC too
             if message.remote_ns == 0:  # a request; tc1 = 0 would read as another request, so >= 1 ns

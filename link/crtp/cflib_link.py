@@ -1,7 +1,8 @@
 """The ground station's radio to a Crazyflie, through Bitcraze's cflib: cfstack messages over CRTP.
 
 Takes in: a cflib URI (`radio://0/80/2M/E7E7E7E7E7` with a Crazyradio, `udp://127.0.0.1:19850` for the
-emulator or CrazySim; any link driver cflib has), CrtpLinkSettings (groundstation/params/crtp_link.toml),
+emulator or CrazySim, `zenoh://cfstack/1` for the emulator on zenoh (link.crtp.zenoh_driver); any link
+driver cflib has), whether it flies in lockstep (zenoh:// only), CrtpLinkSettings (groundstation/params/crtp_link.toml),
 a clock (s) to stamp what arrives; cfstack messages to send.
 Gives out: cfstack messages received (ImuSample from a log block of acc and gyro, Heartbeat and
 BatteryStatus from one of supervisor.info and pm.*, TimeSync replies from the app channel), as an
@@ -27,6 +28,14 @@ turned into m/s^2 and rad/s (FLU, as the firmware's body frame is). The heartbea
 landing (the high-level commander flying our LAND) are the supervisor's bits.
 
 cflib runs its own threads: callbacks put messages in a queue under a lock; the flight loop takes them.
+
+Lockstep (zenoh:// only). Connecting - TOCs, parameters, the heading mode, the log blocks - is over
+before the ground station joins the lockstep, and the emulator answers it off the air (simulator.fleet),
+so a flight starts the same whatever the scheduling. Then the zenoh driver is gated: the flight loop
+takes the CRTP samples a tick announces (`receive`: raw packets, counted), lets cflib's thread have
+exactly those, and waits until it has handled them (`deliver`), so the tick's messages are those of its
+packets only. Nothing else may send on its own: cflib's 10 Hz latency ping (its link statistics, wall
+clock in its payload and its timing) is not started, and the zenoh driver needs no resend timers.
 """
 
 from __future__ import annotations
@@ -94,7 +103,11 @@ class _TransportView:
 
     def __init__(self, radio: CrazyflieRadio):
         self.radio = radio
-        self.stats = radio.tx
+
+    @property
+    def stats(self) -> TransportStats:
+        """Lockstep: the zenoh driver's packet counts (what the clock's acks and ticks count); else the radio's."""
+        return self.radio.driver.stats if self.radio.gated else self.radio.tx
 
     @property
     def is_open(self) -> bool:
@@ -113,14 +126,17 @@ class _TransportView:
 class CrazyflieRadio:
     """An Endpoint over cflib (link.endpoint's interface). `open()` connects and asks for the log blocks."""
 
-    def __init__(self, uri: str, settings: CrtpLinkSettings, clock: Callable[[], float]):
+    def __init__(self, uri: str, settings: CrtpLinkSettings, clock: Callable[[], float], lockstep: bool = False):
         self.uri = uri
+        self.lockstep = lockstep
+        self.protocol = "crtp"  # VehicleLink: a lockstep tick counts this radio's samples as CRTP
         self.settings = settings
         self.clock = clock
         self.stats = LinkStats()
         self.tx = TransportStats()
         self.transport = _TransportView(self)  # what VehicleLink reads of an Endpoint's transport
         self.is_open = False
+        self.gated = False  # lockstep: cflib gets only the packets a tick releases (zenoh driver gate)
         self.reports_uplink_count = False  # a Crazyflie does not count what it received
         self._cf = None
         self._queue: deque = deque()
@@ -138,9 +154,17 @@ class CrazyflieRadio:
         heading mode."""
         import cflib.crtp
 
+        from link.crtp import zenoh_driver
+
+        if self.uri.startswith(zenoh_driver.SCHEME):
+            zenoh_driver.parse_uri(self.uri)  # a malformed one is one line now, not a connect that never answers
+        elif self.lockstep:
+            raise UserError(f"crtp: '{self.uri}' cannot fly in lockstep: only zenoh:// can (udp:// and radio:// "
+                            "fly in realtime)")
         # cflib logs each failed attempt with its traceback: the one line below says it instead
         logging.getLogger("cflib").setLevel(logging.ERROR)
         cflib.crtp.init_drivers()
+        zenoh_driver.register()
         deadline = time.monotonic() + self.settings.connect_timeout_s
         while True:
             cf, failure = self._connect(deadline)
@@ -152,16 +176,39 @@ class CrazyflieRadio:
         self._cf = cf
         self.is_open = True
         cf.appchannel.packet_received.add_callback(self._on_app_packet)
-        cf.param.set_value("flightmode.stabModeYaw", 1)  # the RPYT yaw field is a heading
-        self._start_log("cfstack.imu", IMU_VARIABLES, self.settings.imu_period_ms, self._on_imu)
-        self._start_log("cfstack.status", STATUS_VARIABLES, self.settings.status_period_ms, self._on_status)
+        answered = [self._set_param("flightmode.stabModeYaw", 1),  # the RPYT yaw field is a heading
+                    self._start_log("cfstack.imu", IMU_VARIABLES, self.settings.imu_period_ms, self._on_imu),
+                    self._start_log("cfstack.status", STATUS_VARIABLES, self.settings.status_period_ms,
+                                    self._on_status)]
+        if self.lockstep:  # everything asked is answered before the flight (its first tick) starts
+            deadline = time.monotonic() + self.settings.connect_timeout_s
+            if not all(event.wait(max(0.0, deadline - time.monotonic())) for event in answered):
+                raise UserError(f"crtp: {self.uri} did not confirm the heading mode and log blocks in "
+                                f"{self.settings.connect_timeout_s:g} s")
+            self.driver.gate(self.settings.connect_timeout_s)
+            self.gated = True
         log.info("crtp: connected to %s", self.uri)
+
+    @property
+    def driver(self):
+        """cflib's link driver of the connection (link.crtp.zenoh_driver.ZenohDriver in lockstep)."""
+        return self._cf.link
+
+    def _set_param(self, name: str, value) -> threading.Event:
+        """Set a parameter; the event is set when the Crazyflie confirms it."""
+        group, _, short = name.partition(".")
+        confirmed = threading.Event()
+        self._cf.param.add_update_callback(group=group, name=short, cb=lambda _name, _value: confirmed.set())
+        self._cf.param.set_value(name, value)
+        return confirmed
 
     def _connect(self, deadline: float):
         """(the connected Crazyflie, None) or (None, why not) after one attempt."""
         from cflib.crazyflie import Crazyflie
 
         cf = Crazyflie(rw_cache=None)
+        if self.lockstep:  # no wall-clock ping in a lockstep flight (module docstring); an instance's own no-op
+            cf.link_statistics.start = lambda: None
         done, failure = threading.Event(), []
         cf.fully_connected.add_callback(lambda _uri: done.set())
         cf.connection_failed.add_callback(lambda _uri, msg: (failure.append(str(msg)), done.set()))
@@ -172,10 +219,13 @@ class CrazyflieRadio:
             return None, f"{type(err).__name__}: {err}"
         if done.wait(max(0.0, deadline - time.monotonic())) and not failure:
             return cf, ""
+        stats = getattr(cf.link, "stats", None)  # the zenoh driver counts what went each way
+        counted = "" if stats is None else f": {stats.frames_sent} packets sent, {stats.chunks_received} received"
         cf.close_link()
-        return None, failure[0] if failure else f"no answer in {self.settings.connect_timeout_s:g} s"
+        return None, failure[0] if failure else f"no answer in {self.settings.connect_timeout_s:g} s{counted}"
 
-    def _start_log(self, name: str, variables, period_ms: int, callback) -> None:
+    def _start_log(self, name: str, variables, period_ms: int, callback) -> threading.Event:
+        """Create and start a log block; the event is set when the Crazyflie confirms the start."""
         from cflib.crazyflie.log import LogConfig
 
         config = LogConfig(name=name, period_in_ms=period_ms)
@@ -186,7 +236,10 @@ class CrazyflieRadio:
         except (KeyError, AttributeError) as err:
             raise UserError(f"crtp: {self.uri} cannot log {', '.join(variables)} ({err})") from None
         config.data_received_cb.add_callback(callback)
+        started = threading.Event()
+        config.started_cb.add_callback(lambda _config, ok: ok and started.set())
         config.start()
+        return started
 
     def close(self) -> None:
         if self._cf is not None and self.is_open:
@@ -197,7 +250,10 @@ class CrazyflieRadio:
                 self._cf.close_link()
 
     def receive(self, timeout_s: float = 0.0) -> list:
-        """Every message that arrived (undecoded records: deliver() stamps them), waiting at most timeout_s."""
+        """Every message that arrived (undecoded records: deliver() stamps them), waiting at most timeout_s.
+        Lockstep: the raw packets that arrived, held from cflib until deliver()."""
+        if self.gated:
+            return self.driver.fetch(timeout_s) if self.is_open else []
         with self._arrived:
             if not self._queue and timeout_s > 0.0:
                 self._arrived.wait(timeout_s)
@@ -208,7 +264,14 @@ class CrazyflieRadio:
 
     def deliver(self, chunks: list) -> list[Received]:
         """Stamp what receive() took with the clock now, counting it (CRTP has no sequence numbers: the radio's
-        link layer retries instead, so nothing is counted lost)."""
+        link layer retries instead, so nothing is counted lost). Lockstep: `chunks` are raw packets; cflib
+        handles them first, and what its callbacks made of them is stamped."""
+        if self.gated:
+            self.driver.release(len(chunks))
+            self.driver.wait_handled(self.settings.connect_timeout_s)
+            with self._arrived:
+                chunks = list(self._queue)
+                self._queue.clear()
         now = self.clock()
         out = []
         for message, size in chunks:

@@ -1,12 +1,14 @@
-"""`--link crtp`: the ground station flies the emulated Crazyflie through Bitcraze's cflib, over CRTP on UDP in
-realtime, as it would fly a real one through a Crazyradio: attitude mode on the stock RPYT setpoint (heading
-mode, thrust from the calibrated N -> PWM map), mocap up as extpose, IMU and status down in log blocks.
-Graded on the simulator's truth; what the link cannot do is one line."""
+"""`--link crtp`: the ground station flies the emulated Crazyflie through Bitcraze's cflib, as it would fly a real
+one through a Crazyradio: attitude mode on the stock RPYT setpoint (heading mode, thrust from the calibrated
+N -> PWM map), mocap up as extpose, IMU and status down in log blocks. Over CRTP on UDP in realtime, and over
+zenoh (link.crtp.zenoh_driver) in lockstep, byte-identical per seed. Graded on the simulator's truth; what the
+link cannot do is one line."""
 
 from __future__ import annotations
 
 import csv
 import json
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -17,15 +19,14 @@ pytest.importorskip("cflib", reason="cflib is in the test extra (pip install -e 
 LAB_CLEARANCE_M = 0.10  # as tests/groundstation/test_maze_flights.py grades the lab mazes
 
 
-def test_the_ground_station_flies_a_lab_maze_through_cflib_in_realtime(tmp_path):
-    world = shared_world("test_lab_1")
-    run = cfstack("fly", str(world), "--mode", "attitude", "--link", "crtp", "--log", str(tmp_path), "--json")
+def _check_lab_flight(run, log_dir, imu_rate_hz: float = 100.0) -> dict:
+    """The flight's summary, after checking it reached the goal and landed, graded on the truth."""
     assert run.returncode == 0, run.stderr
     summary = json.loads(run.stdout)
     assert summary["result"] == "reached_goal" and not summary["collided"]
     assert summary["course_grade"]["passed"] and summary["landing"]["result"] == "landed"
     assert summary["link"]["radio"] == "crtp" and summary["link"]["uplink_delivered"] is None  # CRTP has no count
-    with (tmp_path / "states.csv").open() as f:
+    with (log_dir / "states.csv").open() as f:
         rows = [r for r in csv.DictReader(f) if r["truth_x_m"]]
     truth = np.array([[float(r[f"truth_{a}_m"]) for a in "xyz"] for r in rows])
     assert summary["min_clearance_m"] >= LAB_CLEARANCE_M
@@ -36,11 +37,35 @@ def test_the_ground_station_flies_a_lab_maze_through_cflib_in_realtime(tmp_path)
     # and is consistent on it: each 10 ms sample carries the 500 Hz sample's noise (sensor_spec.subsampled)
     assert max(summary["estimator"]["velocity_nees_per_axis"]) < 2.0
     flown_s = float(rows[-1]["t_s"]) - float(rows[0]["t_s"])
-    assert summary["link"]["downlink_delivered"] > 100 * flown_s * 0.9
+    assert summary["link"]["downlink_delivered"] > imu_rate_hz * flown_s * 0.9
+    return summary
+
+
+def test_the_ground_station_flies_a_lab_maze_through_cflib_in_realtime_over_udp(tmp_path):
+    world = shared_world("test_lab_1")
+    run = cfstack("fly", str(world), "--mode", "attitude", "--link", "crtp", "--clock", "realtime",
+                  "--log", str(tmp_path), "--json")
+    _check_lab_flight(run, tmp_path)
+
+
+def test_the_ground_station_flies_a_lab_maze_through_cflib_in_lockstep_over_zenoh_byte_identical(tmp_path):
+    """Lockstep is the default clock; its URI is zenoh://cfstack/1. Two flights of one seed, flown at once,
+    log the same bytes; every log-block sample of the flight reached the estimator (in lockstep, exactly)."""
+    world = shared_world("test_lab_1")
+    dirs = [tmp_path / "a", tmp_path / "b"]
+    with ThreadPoolExecutor(2) as pool:  # each lockstep flight keeps about one core busy
+        runs = list(pool.map(lambda d: cfstack("fly", str(world), "--mode", "attitude", "--link", "crtp",
+                                               "--seed", "3", "--log", str(d), "--json"), dirs))
+    summaries = [_check_lab_flight(run, d) for run, d in zip(runs, dirs, strict=True)]
+    assert (dirs[0] / "states.csv").read_bytes() == (dirs[1] / "states.csv").read_bytes()
+    assert summaries[0]["max_tracking_error_m"] == summaries[1]["max_tracking_error_m"]
+    assert summaries[0]["clock"] == "lockstep"
 
 
 @pytest.mark.parametrize(("arguments", "named"), [
-    (["groundstation", "--link", "crtp", "--clock", "lockstep"], "--clock realtime"),
+    (["groundstation", "--link", "crtp", "--clock", "lockstep", "--uri", "udp://127.0.0.1:19850"],
+     "cannot fly in lockstep"),
+    (["groundstation", "--link", "crtp", "--uri", "zenoh://cfstack/0"], "is not zenoh://PREFIX/VEHICLE"),
     (["fly", "--link", "crtp", "--mode", "position"], "not with --mode position"),
     (["fly", "--uri", "udp://127.0.0.1:19850"], "--uri: a cflib URI is for --link crtp"),
     (["fly", "--link", "crtp", "--uri", "127.0.0.1:19850"], "is not a cflib URI"),

@@ -184,6 +184,32 @@ def test_param_get_and_set_round_trip_and_what_the_emulator_cannot_take(emulator
         assert float(scf.cf.param.get_value("pid_rate.roll_kp")) == 200.0
 
 
+def test_a_cflib_script_runs_over_zenoh_with_cfstacks_link_driver(emulator):
+    """The same script on `zenoh://PREFIX/1?connect=ENDPOINT` (link.crtp.zenoh_driver registered with cflib):
+    the TOCs, a parameter and a log block at 100 Hz on the vehicle's clock, as over UDP."""
+    from link.crtp import zenoh_driver
+
+    zenoh_driver.register()
+    emu = emulator()
+    with _connect(f"zenoh://{emu.prefix}/1?connect={emu.endpoint}") as scf:
+        scf.wait_for_params()
+        assert int(scf.cf.param.get_value("stabilizer.controller")) == 1  # PID, the emulated one
+        config = LogConfig("state", period_in_ms=10)
+        for name in ("stateEstimate.z", "pm.vbat"):
+            config.add_variable(name, "float")
+        entries = []
+        with SyncLogger(scf, config) as logger:
+            for entry in logger:
+                entries.append(entry)
+                if len(entries) == 50:
+                    break
+    stamps_ms = [stamp for stamp, _, _ in entries]
+    steps = [b - a for a, b in zip(stamps_ms, stamps_ms[1:], strict=False)]
+    assert sorted(steps)[len(steps) // 2] == 10
+    assert abs(entries[-1][1]["stateEstimate.z"] - emu.latest_truth().position_enu_m[2]) < 0.05
+    assert 3.0 < entries[-1][1]["pm.vbat"] < 4.3
+
+
 def test_malformed_packets_are_counted_and_ignored_and_the_emulator_keeps_answering(emulator):
     emu = emulator()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:

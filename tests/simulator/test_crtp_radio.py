@@ -1,4 +1,4 @@
-"""CRTP across the simulated radio (simulator.fleet.VehicleNode.serve_crtp): what the air loses is offered
+"""CRTP across the simulated radio (simulator.fleet.VehicleNode.receive_crtp and step): what the air loses is offered
 again, in order, as cflib's radio driver resends until acknowledged, so a lossy radio delays CRTP and loses
 none of it; a corrupted copy fails the radio's CRC. And the radio's own signals this rests on: push() says
 whether the air lost a frame, pop_due() can discard corrupted copies."""
@@ -13,7 +13,6 @@ from link.crtp.packet import CrtpPacket, Port, decode, encode
 from link.transports import open_transport
 from model.radio import load_radio_profile
 from model.vehicle import load_mocap_room, load_vehicle
-from simulator.crtp_service import CrtpService
 from simulator.emulator_config import EmulatorConfig
 from simulator.fleet import VehicleNode
 from simulator.radio import RadioChannel
@@ -40,7 +39,6 @@ def _node(radio, bus: str) -> VehicleNode:
     config = EmulatorConfig(vehicle=CF21, mocap_room=load_mocap_room("vicon"), radio=radio, world=None, seed=5,
                             clock="realtime", firmware="crazyflie")
     node = VehicleNode(config, 1, np.random.SeedSequence(5), (0.0, 0.0, 0.0))
-    node.crtp = CrtpService(node.sim)
     node.crtp_link = open_transport(f"mem:{bus}", tx="down", rx="up")
     return node
 
@@ -53,8 +51,8 @@ def test_a_lossy_radio_delays_crtp_in_order_and_loses_none_of_it():
         if step <= 300:
             sent.append(encode(CrtpPacket(Port.LINK, 0, step.to_bytes(2, "little"))))
             client.send(sent[-1])
-        node.serve_crtp(node.sim.t_s)
-        node.sim.step()
+        node.receive_crtp(node.sim.t_s)
+        node.step(step)
         echoes += [decode(d).data for d in client.receive(0.0)]
     assert echoes == [decode(p).data for p in sent]  # every one, once, in the order sent
     up = node.crtp_uplink_radio.stats
@@ -67,9 +65,9 @@ def test_a_packet_the_air_never_carries_is_given_up_after_cflibs_tries():
     node = _node(_lossy(1.0), "crtp-dead")
     client = open_transport("mem:crtp-dead", tx="up", rx="down")
     client.send(encode(CrtpPacket(Port.LINK, 0, b"x")))
-    for _ in range(150):
-        node.serve_crtp(node.sim.t_s)
-        node.sim.step()
+    for step in range(1, 151):
+        node.receive_crtp(node.sim.t_s)
+        node.step(step)
     assert node.crtp_lost == 1 and client.receive(0.0) == []
     client.close()
     node.close()
