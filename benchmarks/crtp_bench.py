@@ -7,14 +7,19 @@ Prints, from one run:
    both ways);
 2. the round trip of the same datagram through a bare UDP echo process (the floor of any UDP service here);
 3. cflib's own connect time (scan excluded): SyncCrazyflie open with the TOCs downloaded, then all
-   parameter values read, cold (no TOC cache) and warm (cache filled by the first connect).
+   parameter values read, cold (no TOC cache) and warm (cache filled by the first connect);
+4. lockstep speed of the ground station's cflib path (`--link crtp`, over zenoh) against its MAVLink path:
+   `cfstack fly --trajectory circle --mode M --link L --json`, the flight loop's real-time factor (the
+   summary's timing.real_time_factor), attitude and moments mode, the two links alternating flight by
+   flight in the same run; median per path and the ratio cflib / MAVLink.
 
-Usage: python benchmarks/crtp_bench.py [--count N]
+Usage: python benchmarks/crtp_bench.py [--count N] [--flights N]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import socket
 import subprocess
@@ -77,9 +82,32 @@ def cflib_connect_s(uri: str, cache: str | None) -> tuple[float, float]:
     return connected, fully
 
 
+def lockstep_rtf(mode: str, link: str) -> float:
+    """The flight loop's real-time factor of one lockstep circle (a private zenoh endpoint: fly's own child)."""
+    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", "--trajectory", "circle", "--mode", mode,
+                          "--link", link, "--id", f"b{uuid.uuid4().hex[:8]}", "--json"],
+                         capture_output=True, text=True, timeout=600)
+    if run.returncode != 0:
+        raise SystemExit(f"fly --link {link} --mode {mode} failed: {run.stderr.strip().splitlines()[-1]}")
+    return float(json.loads(run.stdout)["timing"]["real_time_factor"])
+
+
+def lockstep_paths(flights: int) -> None:
+    for mode in ("attitude", "moments"):
+        rtf: dict[str, list[float]] = {"crtp": [], "mavlink": []}
+        for i in range(flights):
+            for link in ("crtp", "mavlink") if i % 2 == 0 else ("mavlink", "crtp"):
+                rtf[link].append(lockstep_rtf(mode, link))
+        cflib, mavlink = (float(np.median(rtf[k])) for k in ("crtp", "mavlink"))
+        print(f"lockstep circle, {mode} mode, {flights} flights each: cflib path {cflib:.2f}x real time "
+              f"({', '.join(f'{v:.2f}' for v in rtf['crtp'])}), MAVLink path {mavlink:.2f}x "
+              f"({', '.join(f'{v:.2f}' for v in rtf['mavlink'])}); ratio cflib / MAVLink {cflib / mavlink:.2f}")
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--count", type=int, default=2000, help="round trips per measurement")
+    p.add_argument("--flights", type=int, default=3, help="lockstep flights per path and mode (0: skip)")
     args = p.parse_args()
     bare = bare_udp_rtt_ms(len(ECHO), args.count)
     for radio in ("ideal", "crazyradio"):  # the cflib connect below runs on the last: the default radio
@@ -110,6 +138,8 @@ def main() -> int:
     finally:
         emulator.send_signal(signal.SIGINT)
         emulator.wait(timeout=30)
+    if args.flights > 0:
+        lockstep_paths(args.flights)
     return 0
 
 

@@ -3,7 +3,8 @@
 Takes in: command-line options (world, vehicles, radio profile, clock, seed, zenoh endpoints, key prefix,
 injected faults --cut-radio / --cut-mocap AT[:DURATION] in simulated seconds; see `cfstack emulator --help`).
 Gives out: a running emulator (see simulator.emulator), and with the realtime clock and the faithful
-firmware, by default, CRTP for unmodified cflib clients on udp 127.0.0.1:19850+N-1 (--crtp-port); on
+firmware, by default, CRTP for unmodified cflib clients on udp 127.0.0.1:19850+N-1 (--crtp-port), and
+with the faithful firmware in either clock CRTP on each vehicle's zenoh keys (cflib's zenoh:// driver); on
 Ctrl-C or SIGTERM (or after --duration simulated seconds) a clean stop and a one-line summary on stderr;
 with --radio-ledger, a JSON file of the radio statistics (frames cut, the uplink parser's signature
 failures) and every frame's fate.
