@@ -6,9 +6,10 @@ radio); CRTP packets on its crtp/uplink key (faithful firmware; through its CRTP
 lockstep acknowledgements on the clock-ack keys (link.clock).
 Gives out: downlink frames (through the downlink radio), CRTP answers and log blocks on crtp/downlink,
 mocap poses (ground network, no radio), simulation-only ground truth, lockstep clock ticks (keys:
-link.keys.VehicleKeys, one set per vehicle id 1..N); `summary()` (one line), `radio_report()` (per-channel statistics, the frames the fault
-windows cut, the uplink parser's counters - signature failures included - and, with keep_ledger,
-every frame's fate), and per-part timing with `profile=True` (for benchmarks).
+link.keys.VehicleKeys, one set per vehicle id 1..N); `summary()` (one line), `radio_report()`
+(per-channel statistics, the frames the fault windows cut, the uplink parser's counters - signature
+failures included - and, with keep_ledger, every frame's fate), and per-part timing with
+`profile=True` (for benchmarks).
 
 Parts: the fleet (simulator.fleet: each vehicle with its radios and codecs), publishing
 (simulator.publishing), fault injection (simulator.faults), the lockstep clock and its lookahead
