@@ -126,7 +126,8 @@ class LockstepClock:
         self.ticks = 0
 
     def start(self) -> None:
-        self.transport.send(ClockAck(-1, self.link.uplink_sent, 0, period_ns=self.period_ns).pack())
+        self.transport.send(ClockAck(-1, self.link.uplink_sent, 0, period_ns=self.period_ns,
+                                     crtp=self.link.speaks_crtp).pack())
 
     def now(self) -> float:
         return self.t_s
@@ -183,7 +184,8 @@ class LockstepClock:
     def release(self, next_wakeup_s: float) -> None:
         """Ack the tick: every uplink frame of it is sent. The emulator may step on from here."""
         wake_ns = max(round(next_wakeup_s * NS_PER_S), round(self.t_s * NS_PER_S) + 1)
-        self.transport.send(ClockAck(self.tick, self.link.uplink_sent, wake_ns, period_ns=self.period_ns).pack())
+        self.transport.send(ClockAck(self.tick, self.link.uplink_sent, wake_ns, period_ns=self.period_ns,
+                                     crtp=self.link.speaks_crtp).pack())
 
     def done(self) -> None:
         self.timer.stop()

@@ -46,6 +46,8 @@ class ClockTick:
 @dataclass(frozen=True)
 class ClockAck:
     """A ground station's reply to tick `tick` (-1 = join). `leaving` = it takes no further part.
+    `crtp`: its uplink_sent counts the CRTP packets it sent on the vehicle's crtp/uplink key (it speaks
+    CRTP on its radio), not MAVLink frames.
 
     `period_ns` > 0 is a standing order: after every tick at time t this ground station wants the next
     at t + period_ns; its next_wakeup_ns must say the same, and the emulator goes by the period. It lets
@@ -57,10 +59,11 @@ class ClockAck:
     next_wakeup_ns: int
     leaving: bool = False
     period_ns: int = 0
+    crtp: bool = False
 
     def pack(self) -> bytes:
         return _ACK.pack(_ACK_MAGIC, self.tick, self.uplink_sent, self.next_wakeup_ns, self.period_ns,
-                         int(self.leaving))
+                         int(self.leaving) | int(self.crtp) << 1)
 
 
 def unpack_tick(data: bytes) -> ClockTick | None:
@@ -73,5 +76,5 @@ def unpack_tick(data: bytes) -> ClockTick | None:
 def unpack_ack(data: bytes) -> ClockAck | None:
     if len(data) != _ACK.size or data[:4] != _ACK_MAGIC:
         return None
-    _, tick, sent, wake, period, leaving = _ACK.unpack(data)
-    return ClockAck(tick, sent, wake, bool(leaving), max(0, period))
+    _, tick, sent, wake, period, flags = _ACK.unpack(data)
+    return ClockAck(tick, sent, wake, bool(flags & 1), max(0, period), bool(flags & 2))

@@ -18,10 +18,11 @@ attempt's time is decided when the packet is offered (each attempt one step afte
 before the previous packet's), so the result does not depend on when steps run (lockstep lookahead).
 The vehicle serves what arrives at its next firmware cycle (SimVehicle: CrtpDatagram).
 
-Lockstep and CRTP. Every sample on the CRTP uplink key but a null packet counts as the ground station's
-(CRTP names no sender): a ground station's acks count its CRTP packets as its uplink frames, except the
-null packets its link sends to find the emulator (some are lost before the sessions meet), and it
-speaks one protocol on its radio. CRTP a lockstep ack has not yet accounted for in flight - a vehicle's traffic
+Lockstep and CRTP. A ground station speaks one protocol on its radio, and its acks say which
+(ClockAck.crtp). If CRTP, every sample on the vehicle's CRTP uplink key but a null packet counts as its
+own (CRTP names no sender; null packets are what its link sends to find the emulator, and some are lost
+before the sessions meet) and MAVLink frames are foreign; if MAVLink, CRTP samples are foreign (a cflib
+script watching the vehicle, say). CRTP a lockstep ack has not yet accounted for in flight - a vehicle's traffic
 before its ground station joins (a cflib connect: TOCs, parameters, log blocks), and any while no
 ground station of it takes part - is answered at once, off the air: simulation time may stand
 still meanwhile (nobody steps it), and the join must not depend on which key's samples came first.
@@ -147,9 +148,11 @@ class VehicleNode:
         self.gate = GroundFrameGate(require_signed=config.signing is not None, signing=gate_signing)
         self.outbox = Outbox()
         self.uplink_in = 0  # the ground station's uplink frames taken from the transport (GroundFrameGate)
-        # lockstep: (sample, its frames of ours, CRTP or not), not yet offered
+        self.ground_speaks_crtp = False  # lockstep: the participating ground station's protocol (ClockAck.crtp)
+        # lockstep: (sample, its ground-station MAVLink frames (GroundFrameGate), CRTP or not), not yet offered
         self.held_uplink: deque[tuple[bytes, int, bool]] = deque()
-        self.uplink_released = 0  # the ground station's frames offered to the radio from held_uplink
+        # offered from held_uplink: the ground station's MAVLink frames (GroundFrameGate), CRTP packets (not null)
+        self._released = [0, 0]
         self.uplink_foreign = 0  # uplink samples with none of its frames (another publisher on the key)
         self.radio_cuts = config.radio_cuts
         self.mocap_cuts = config.mocap_cuts
@@ -166,7 +169,7 @@ class VehicleNode:
         self.sim.crtp = self.crtp
         self.crtp_keys: Transport | None = None  # CRTP on the vehicle's zenoh keys
         self.crtp_link: Transport | None = None  # CRTP over UDP for cflib clients (realtime)
-        self._crtp_ground = False  # a CRTP sample came on the keys: a lockstep wait blocks on that key
+        self.crtp_seen = False  # a CRTP sample came on the keys (a join's wait blocks on that key)
         self._deck_fixes: deque[tuple[float, ExternalPose]] = deque()  # (release time, fix): outputs come in order
         self._ground_extpose_s = -math.inf  # when the ground station's last extpose arrived
         self.position_deck = config.position_deck and config.crtp_base_port is not None and self.crtp is not None
@@ -256,23 +259,22 @@ class VehicleNode:
             self._count_arrival(frame)
         self._offer_uplink(frames, push_time_s)
 
-    def take_uplink(self, timeout_s: float = 0.0) -> int:
+    def take_uplink(self, timeout_s: float = 0.0, wait_on_crtp: bool | None = None) -> int:
         """Lockstep: take the uplink samples that have arrived, count the ground station's frames among
-        them, and hold them until its acks account for them (release_uplink)."""
+        them, and hold them until its acks account for them (release_uplink). Waiting at most timeout_s on
+        the key the ground station speaks on (wait_on_crtp: the CRTP key, None: by ground_speaks_crtp)."""
         crtp_keys = self.crtp_keys
-        wait_on_crtp = crtp_keys is not None and self._crtp_ground  # a ground station that speaks CRTP
+        wait_on_crtp = crtp_keys is not None and (self.ground_speaks_crtp if wait_on_crtp is None else wait_on_crtp)
         samples = self.link.receive(0.0 if wait_on_crtp else timeout_s)
         for sample in samples:
             self.held_uplink.append((sample, self._count_arrival(sample), False))
         if crtp_keys is None:
             return len(samples)
         packets = crtp_keys.receive(timeout_s if wait_on_crtp else 0.0)
-        for packet in packets:  # CRTP names no sender: every packet counts but a null packet (a link probe)
-            ours = 0 if is_null(packet) else 1
-            self.uplink_in += ours
-            self.held_uplink.append((packet, ours, True))
+        for packet in packets:  # CRTP names no sender: a packet is the CRTP ground station's but a null one
+            self.held_uplink.append((packet, 0 if is_null(packet) else 1, True))
         if packets:
-            self._crtp_ground = True
+            self.crtp_seen = True
         return len(samples) + len(packets)
 
     def _count_arrival(self, sample: bytes) -> int:
@@ -289,15 +291,28 @@ class VehicleNode:
         sent = uplink_released: only the foreign samples at the head; math.inf: every held sample.
         off_air: CRTP packets among them are answered at once, off the air (see the module docstring)."""
         held = self.held_uplink
-        while held and self.uplink_released + held[0][1] <= sent:
-            sample, ours, is_crtp = held.popleft()
-            self.uplink_released += ours
+        crtp_ground = self.ground_speaks_crtp
+        while held:
+            sample, counted, is_crtp = held[0]
+            ours = counted if is_crtp == crtp_ground else 0  # the other protocol's samples are foreign
+            if self.uplink_released + ours > sent:
+                break
+            held.popleft()
+            self._released[is_crtp] += counted  # each protocol's own count: the join's ack may come later
+            if is_crtp:  # counted here, where the ground station's protocol is known (MAVLink: on arrival)
+                self.uplink_in += ours
+                self.uplink_foreign += not ours
             if not is_crtp:
                 self._offer_uplink((sample,), push_time_s)
             elif off_air:
                 self._answer_off_air(sample, push_time_s)
             else:
                 self._offer_crtp(UPLINK, sample, push_time_s)
+
+    @property
+    def uplink_released(self) -> int:
+        """The ground station's frames (or CRTP packets, if it speaks CRTP) offered from held_uplink."""
+        return self._released[self.ground_speaks_crtp]
 
     def _offer_uplink(self, frames, push_time_s: float) -> None:
         """Into the uplink radio at push_time_s, unless a radio cut covers that time."""

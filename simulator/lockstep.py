@@ -74,6 +74,7 @@ class Participant:
     period_ns: int  # its standing period (ClockAck.period_ns; 0: none)
     complete: int  # the last tick whose uplink frames are all in and offered to the radio
     fresh: bool = True  # joined, no tick acknowledged yet: its standing period does not apply yet
+    crtp: bool = False  # it speaks CRTP: its acks count its CRTP packets (ClockAck.crtp), not MAVLink frames
     # (tick, uplink_sent, joining) of acks whose frames are not all in; a join's CRTP is answered off the air
     pending: deque = field(default_factory=deque)
 
@@ -104,7 +105,8 @@ class Lockstep:
                          tick_steps * dt_s)
                 # it has seen nothing: it wants a tick at once (at the last tick's time)
                 wake_ns = round(tick_steps * dt_s * NS_PER_S)
-                p = self.participants[vehicle_id] = Participant(tick, wake_ns, ack.period_ns, tick - 1)
+                p = self.participants[vehicle_id] = Participant(tick, wake_ns, ack.period_ns, tick - 1,
+                                                                crtp=ack.crtp)
                 self.tick_steps.setdefault(tick, tick_steps)
                 p.pending.append((tick, ack.uplink_sent, True))
             return
@@ -121,6 +123,7 @@ class Lockstep:
         answer, as far as its acks account for them (ClockAck.uplink_sent counts its frames)."""
         for vid, p in self.participants.items():
             node = nodes[vid - 1]
+            node.ground_speaks_crtp = p.crtp
             while p.pending:
                 tick, sent, joining = p.pending[0]
                 t_s = self.tick_steps[tick] * dt_s
@@ -277,7 +280,7 @@ class LockstepClock:
             self._join_wait = (self._join_wait + 1) % len(emu.nodes)
             node = emu.nodes[self._join_wait]
             if node.crtp_keys is not None:
-                node.take_uplink(JOIN_POLL_S)
+                node.take_uplink(JOIN_POLL_S, wait_on_crtp=node.crtp_seen)
                 timeout_s = 0.0
             else:
                 node, timeout_s = emu.nodes[0], JOIN_POLL_S

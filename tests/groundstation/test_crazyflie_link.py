@@ -8,11 +8,15 @@ from __future__ import annotations
 
 import csv
 import json
+import signal
+import subprocess
+import sys
+import uuid
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
-from testsupport import cfstack, one_line_error, shared_world
+from testsupport import cfstack, free_port, one_line_error, shared_world
 
 pytest.importorskip("cflib", reason="cflib is in the test extra (pip install -e '.[test]')")
 
@@ -73,3 +77,53 @@ def test_the_ground_station_flies_a_lab_maze_through_cflib_in_lockstep_over_zeno
 ])
 def test_what_the_crazyflie_link_cannot_do_is_one_line(arguments, named):
     assert named in one_line_error(cfstack(*arguments, timeout=60))
+
+
+def _lockstep_pair(tmp_path, name: str, watch: bool) -> tuple[subprocess.CompletedProcess, list]:
+    """`cfstack emulator` and `cfstack groundstation` in lockstep on a private endpoint, a MAVLink hover; with
+    `watch`, a cflib script connected over zenoh before the flight logs stateEstimate.z all through it."""
+    from cflib.crazyflie import Crazyflie
+    from cflib.crazyflie.log import LogConfig
+    from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
+
+    from link.crtp import zenoh_driver
+
+    endpoint, prefix = f"tcp/127.0.0.1:{free_port()}", f"w{uuid.uuid4().hex[:8]}"
+    emulator = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", "--clock", "lockstep", "--seed", "3",
+                                 "--listen", endpoint, "--id", prefix, "--crtp-port", "off", "--quiet"],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    entries: list = []
+    scf = None
+    try:
+        if watch:
+            zenoh_driver.register()
+            scf = SyncCrazyflie(f"zenoh://{prefix}/1?connect={endpoint}", cf=Crazyflie(rw_cache=None))
+            scf.open_link()
+            config = LogConfig("watch", period_in_ms=100)
+            config.add_variable("stateEstimate.z", "float")
+            scf.cf.log.add_config(config)
+            config.data_received_cb.add_callback(lambda stamp, data, _c: entries.append((stamp, data)))
+            config.start()
+        run = cfstack("groundstation", "--trajectory", "hover", "--clock", "lockstep", "--connect", endpoint,
+                      "--id", prefix, "--log", str(tmp_path / name), "--json")
+    finally:
+        if scf is not None:
+            scf.close_link()
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(timeout=30)
+    return run, entries
+
+
+def test_a_cflib_script_watching_over_zenoh_changes_nothing_in_a_mavlink_lockstep_flight(tmp_path):
+    """Its CRTP is foreign to the MAVLink ground station's lockstep (ClockAck.crtp): served on the vehicle's CRTP
+    radios in simulation time, it neither counts towards the ground station's acks nor touches its radios."""
+    with ThreadPoolExecutor(2) as pool:
+        plain = pool.submit(_lockstep_pair, tmp_path, "plain", False)
+        watched = pool.submit(_lockstep_pair, tmp_path, "watched", True)
+        (plain_run, _), (watched_run, entries) = plain.result(), watched.result()
+    assert plain_run.returncode == 0, plain_run.stderr
+    assert watched_run.returncode == 0, watched_run.stderr
+    assert (tmp_path / "plain" / "states.csv").read_bytes() == (tmp_path / "watched" / "states.csv").read_bytes()
+    flown_s = json.loads(watched_run.stdout)["sim_time_s"]
+    assert len(entries) >= 0.9 * flown_s / 0.1  # the log block ran all through, on the simulation's clock
+    assert max(data["stateEstimate.z"] for _, data in entries) > 0.5  # and saw the hover
