@@ -31,6 +31,7 @@ import socket
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -58,13 +59,16 @@ FLOOR_FIRMWARES = ("ideal", "crazyflie")  # the floor with each onboard side (cf
 BASELINE_REV = "0f6b840"
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
+# `python -m cfstack` puts its working directory first on sys.path: run outside any tree, so a baseline's
+# PYTHONPATH decides which cfstack runs (its emulator child included), never the directory it was started in
+NEUTRAL_CWD = tempfile.gettempdir()
 PART_NAMES = ("waiting", "codec", "estimator", "controller", "mission", "logging")
 FIRMWARE_RATE_HZ = 500.0  # simulator/params/firmware.toml commander rate: when a delivered setpoint acts
 
 
 def cfstack(*args: str, timeout: float = 900, env: dict | None = None) -> dict:
     run = subprocess.run([sys.executable, "-m", "cfstack", *args, "--json"], capture_output=True, text=True,
-                         timeout=timeout, stdin=subprocess.DEVNULL, env=env)
+                         timeout=timeout, stdin=subprocess.DEVNULL, env=env, cwd=NEUTRAL_CWD)
     if not run.stdout.strip():
         raise SystemExit(f"cfstack {' '.join(args)} failed: {run.stderr.strip()[-300:]}")
     return json.loads(run.stdout)
@@ -88,7 +92,8 @@ def fly_timed(args: list[str], log: Path, tree: Path | None) -> tuple[dict, dict
     plain = cfstack(*args, "--log", str(log / "plain"), env=env)
     out = log / "parts.json"
     run = subprocess.run([sys.executable, str(HERE / "flight_parts.py"), str(out), *args, "--log", str(log / "parts")],
-                         env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=900)
+                         env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=900,
+                         cwd=NEUTRAL_CWD)
     if run.returncode != 0:
         raise SystemExit(f"flight_parts.py {' '.join(args)} failed: {run.stderr.strip()[-300:]}")
     return plain, json.loads(out.read_text())
