@@ -299,7 +299,7 @@ class VehicleNode:
                 break
             held.popleft()
             self._released[is_crtp] += counted  # each protocol's own count: the join's ack may come later
-            if is_crtp:  # counted here, where the ground station's protocol is known (MAVLink: on arrival)
+            if is_crtp and not off_air:  # counted here, once a tick accounts for them (MAVLink: on arrival)
                 self.uplink_in += ours
                 self.uplink_foreign += not ours
             if not is_crtp:
