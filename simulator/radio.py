@@ -54,7 +54,6 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
-from scipy.special import ndtr, ndtri
 
 from model.radio import RadioProfile
 
@@ -173,6 +172,9 @@ class RadioChannel:
         self._base_s = profile.base_latency_s
         self._jitter_law = profile.jitter if profile.jitter_s > 0.0 else None
         if self._jitter_law == "normal":
+            from scipy.special import ndtr, ndtri  # here: the other laws need no scipy (emulator start-up)
+
+            self._ndtri = ndtri
             self._cdf_lo = float(ndtr(self._lo_jitter / profile.jitter_s))
             self._cdf_hi = float(ndtr(self._hi_jitter / profile.jitter_s))
         self._s_per_byte = 8.0 / profile.bandwidth_bps if profile.bandwidth_bps > 0.0 else 0.0
@@ -395,7 +397,7 @@ class RadioChannel:
             else:  # truncated normal by inversion: exact, one draw, no rejection loop
                 q = self._cdf_lo + u * (self._cdf_hi - self._cdf_lo)
                 jitter_s = self.profile.jitter_s
-                delay += min(max(float(ndtri(q)) * jitter_s, self._lo_jitter), self._hi_jitter)
+                delay += min(max(float(self._ndtri(q)) * jitter_s, self._lo_jitter), self._hi_jitter)
         if self._reorder_p > 0.0 and self._uniform() < self._reorder_p:
             delay += self._reorder_s
         # max(): floating-point rounding must never beat the advertised lower bound.

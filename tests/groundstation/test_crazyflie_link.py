@@ -45,23 +45,39 @@ def _check_lab_flight(run, log_dir, imu_rate_hz: float = 100.0) -> dict:
     return summary
 
 
-def test_the_ground_station_flies_a_lab_maze_through_cflib_in_realtime_over_udp(tmp_path):
-    world = shared_world("test_lab_1")
-    run = cfstack("fly", str(world), "--mode", "attitude", "--link", "crtp", "--clock", "realtime",
-                  "--log", str(tmp_path), "--json")
-    _check_lab_flight(run, tmp_path)
+def _fly_lab(mode_args: tuple[str, ...], log_dir):
+    return cfstack("fly", str(shared_world("test_lab_1")), "--mode", "attitude", "--link", "crtp", *mode_args,
+                   "--log", str(log_dir), "--json")
 
 
-def test_the_ground_station_flies_a_lab_maze_through_cflib_in_lockstep_over_zenoh_byte_identical(tmp_path):
-    """Lockstep is the default clock; its URI is zenoh://cfstack/1. Two flights of one seed, flown at once,
-    log the same bytes; every log-block sample of the flight reached the estimator (in lockstep, exactly)."""
-    world = shared_world("test_lab_1")
-    dirs = [tmp_path / "a", tmp_path / "b"]
-    with ThreadPoolExecutor(2) as pool:  # each lockstep flight keeps about one core busy
-        runs = list(pool.map(lambda d: cfstack("fly", str(world), "--mode", "attitude", "--link", "crtp",
-                                               "--seed", "3", "--log", str(d), "--json"), dirs))
-    summaries = [_check_lab_flight(run, d) for run, d in zip(runs, dirs, strict=True)]
-    assert (dirs[0] / "states.csv").read_bytes() == (dirs[1] / "states.csv").read_bytes()
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    """Every flight of this module, the realtime one beside the lockstep ones: the realtime flight keeps under
+    a core busy, and the lockstep flights, one at a time, about one."""
+    root = tmp_path_factory.mktemp("crazyflie_link")
+
+    def lockstep_flights():
+        maze = [(_fly_lab(("--seed", "3"), root / name), root / name) for name in ("a", "b")]
+        return maze, _lockstep_pair(root, "plain", False), _lockstep_pair(root, "watched", True)
+
+    with ThreadPoolExecutor(2) as pool:
+        realtime = pool.submit(_fly_lab, ("--clock", "realtime"), root / "realtime")
+        lockstep = pool.submit(lockstep_flights)
+        maze, plain, watched = lockstep.result()
+        return {"realtime": (realtime.result(), root / "realtime"), "maze": maze, "plain": plain,
+                "watched": watched, "root": root}
+
+
+def test_the_ground_station_flies_a_lab_maze_through_cflib_in_realtime_over_udp(flights):
+    _check_lab_flight(*flights["realtime"])
+
+
+def test_the_ground_station_flies_a_lab_maze_through_cflib_in_lockstep_over_zenoh_byte_identical(flights):
+    """Lockstep is the default clock; its URI is zenoh://cfstack/1. Two flights of one seed log the same bytes;
+    every log-block sample of the flight reached the estimator (in lockstep, exactly)."""
+    (run_a, dir_a), (run_b, dir_b) = flights["maze"]
+    summaries = [_check_lab_flight(run_a, dir_a), _check_lab_flight(run_b, dir_b)]
+    assert (dir_a / "states.csv").read_bytes() == (dir_b / "states.csv").read_bytes()
     assert summaries[0]["max_tracking_error_m"] == summaries[1]["max_tracking_error_m"]
     assert summaries[0]["clock"] == "lockstep"
 
@@ -114,16 +130,14 @@ def _lockstep_pair(tmp_path, name: str, watch: bool) -> tuple[subprocess.Complet
     return run, entries
 
 
-def test_a_cflib_script_watching_over_zenoh_changes_nothing_in_a_mavlink_lockstep_flight(tmp_path):
+def test_a_cflib_script_watching_over_zenoh_changes_nothing_in_a_mavlink_lockstep_flight(flights):
     """Its CRTP is foreign to the MAVLink ground station's lockstep (ClockAck.crtp): served on the vehicle's CRTP
     radios in simulation time, it neither counts towards the ground station's acks nor touches its radios."""
-    with ThreadPoolExecutor(2) as pool:
-        plain = pool.submit(_lockstep_pair, tmp_path, "plain", False)
-        watched = pool.submit(_lockstep_pair, tmp_path, "watched", True)
-        (plain_run, _), (watched_run, entries) = plain.result(), watched.result()
+    (plain_run, _), (watched_run, entries) = flights["plain"], flights["watched"]
+    root = flights["root"]
     assert plain_run.returncode == 0, plain_run.stderr
     assert watched_run.returncode == 0, watched_run.stderr
-    assert (tmp_path / "plain" / "states.csv").read_bytes() == (tmp_path / "watched" / "states.csv").read_bytes()
+    assert (root / "plain" / "states.csv").read_bytes() == (root / "watched" / "states.csv").read_bytes()
     flown_s = json.loads(watched_run.stdout)["sim_time_s"]
     assert len(entries) >= 0.9 * flown_s / 0.1  # the log block ran all through, on the simulation's clock
     assert max(data["stateEstimate.z"] for _, data in entries) > 0.5  # and saw the hover
