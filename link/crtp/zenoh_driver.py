@@ -36,7 +36,8 @@ from model.errors import UserError
 SCHEME = "zenoh://"
 NULL_PACKET = b"\xff"  # CRTP's null packet (header 0xff, no data): a Crazyflie answers it with one
 PROBE_PERIOD_S = 0.1  # at connect: a null packet this often until the emulator answers
-PROBE_TIMEOUT_S = 2.0  # then the connection attempt fails (the caller may try again)
+PROBE_TIMEOUT_S = 5.0  # then the connection attempt fails (the caller may try again): an emulator just started
+# answers after ~0.5 s here (its imports and zenoh), a busy machine takes longer
 PULL_SLICE_S = 0.05  # longest single wait on zenoh by cflib's thread (a gate waits at most this for it)
 
 _session = {"connection": "zenoh", "options": {}}  # the session `zenoh://` URIs open on (use_session)
