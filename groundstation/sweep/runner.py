@@ -93,6 +93,8 @@ class DaskRunner:
     client: Client = field(init=False)
     cluster: LocalCluster | None = field(init=False, default=None)
     started_on: dict[str, str] = field(init=False, default_factory=dict)  # task key -> worker address
+    lost_workers: set[str] = field(init=False, default_factory=set)  # workers that left while flying ours
+    _missing_once: set[str] = field(init=False, default_factory=set)  # flying workers the last look missed
 
     def __post_init__(self) -> None:
         if self.opts.scheduler:
@@ -151,17 +153,22 @@ class DaskRunner:
         return progress
 
     def _watch_workers(self, flights: list[_Flight], progress: Progress) -> None:
-        """A flight whose worker left the cluster after it started flying there lost its worker."""
+        """A flight whose worker left the cluster after it started flying there lost its worker. A worker
+        has left when two looks in a row (POLL_S apart) miss it: one look can come back without a worker
+        that is there (seen in CI: a snapshot taken while the scheduler removed another worker listed
+        neither). Progress counts each lost worker once, however many flights it took down."""
         alive = set(self.client.scheduler_info().get("workers", {}))
-        lost_now = set()
         for flight in flights:
             flight.worker = self.started_on.get(flight.future.key, flight.worker)
-            if flight.worker is not None and flight.worker not in alive and not flight.worker_lost:
+        missing = {f.worker for f in flights if f.worker is not None and f.worker not in alive}
+        gone, self._missing_once = missing & self._missing_once, missing
+        for flight in flights:
+            if flight.worker in gone and not flight.worker_lost:
                 flight.worker_lost = True
-                lost_now.add(flight.worker)
+                self.lost_workers.add(flight.worker)
                 log.warning("worker %s lost while flying %s", flight.worker, flight.job.cell.label)
                 self.started_on.pop(flight.future.key, None)  # dask may start it again elsewhere
-        progress.lost_workers += len(lost_now)
+        progress.lost_workers = len(self.lost_workers)
 
     def _finish(self, flight: _Flight, on_row: Callable[[dict], None], progress: Progress) -> _Flight | None:
         """Record a finished future, or start its retry (returned)."""
