@@ -133,6 +133,27 @@ def _connect(uri: str) -> SyncCrazyflie:
     return SyncCrazyflie(uri, cf=Crazyflie(rw_cache=None))
 
 
+def _log_at_100_hz(scf: SyncCrazyflie, names: tuple[str, ...], count: int) -> list:
+    """`count` SyncLogger entries (stamp ms, data, config) of float variables at 100 Hz, the fastest a log
+    block runs."""
+    config = LogConfig("state", period_in_ms=10)
+    for name in names:
+        config.add_variable(name, "float")
+    entries = []
+    with SyncLogger(scf, config) as logger:
+        for entry in logger:
+            entries.append(entry)
+            if len(entries) == count:
+                break
+    return entries
+
+
+def _median_step_ms(entries: list) -> float:
+    stamps_ms = [stamp for stamp, _, _ in entries]
+    steps = [b - a for a, b in zip(stamps_ms, stamps_ms[1:], strict=False)]
+    return sorted(steps)[len(steps) // 2]
+
+
 def test_cflib_scans_connects_and_reads_both_tocs_and_logs_state_at_100_hz(emulator):
     port = _free_udp_port(SCAN_PORTS)
     if port is None:
@@ -148,18 +169,8 @@ def test_cflib_scans_connects_and_reads_both_tocs_and_logs_state_at_100_hz(emula
         assert {"stabilizer.controller", "stabilizer.estimator", "commander.enHighLevel", "pid_rate.roll_kp",
                 "pid_attitude.yaw_kd", "locSrv.extPosStdDev"} <= params
         assert len(cf.mem.get_mems(0)) == 0  # no memories (decks, EEPROM) on the emulated vehicle
-        config = LogConfig("state", period_in_ms=10)  # 100 Hz, the fastest a log block runs
-        for name in ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z", "pm.vbat"):
-            config.add_variable(name, "float")
-        entries = []
-        with SyncLogger(scf, config) as logger:
-            for entry in logger:
-                entries.append(entry)
-                if len(entries) == 100:
-                    break
-    stamps_ms = [stamp for stamp, _, _ in entries]
-    steps = [b - a for a, b in zip(stamps_ms, stamps_ms[1:], strict=False)]
-    assert sorted(steps)[len(steps) // 2] == 10  # the vehicle's clock: one entry per 10 ms
+        entries = _log_at_100_hz(scf, ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z", "pm.vbat"), 100)
+    assert _median_step_ms(entries) == 10  # the vehicle's clock: one entry per 10 ms
     truth = emu.latest_truth()
     last = entries[-1][1]
     # on the floor, seen by the simulated positioning deck through the onboard estimator
@@ -194,18 +205,8 @@ def test_a_cflib_script_runs_over_zenoh_with_cfstacks_link_driver(emulator):
     with _connect(f"zenoh://{emu.prefix}/1?connect={emu.endpoint}") as scf:
         scf.wait_for_params()
         assert int(scf.cf.param.get_value("stabilizer.controller")) == 1  # PID, the emulated one
-        config = LogConfig("state", period_in_ms=10)
-        for name in ("stateEstimate.z", "pm.vbat"):
-            config.add_variable(name, "float")
-        entries = []
-        with SyncLogger(scf, config) as logger:
-            for entry in logger:
-                entries.append(entry)
-                if len(entries) == 50:
-                    break
-    stamps_ms = [stamp for stamp, _, _ in entries]
-    steps = [b - a for a, b in zip(stamps_ms, stamps_ms[1:], strict=False)]
-    assert sorted(steps)[len(steps) // 2] == 10
+        entries = _log_at_100_hz(scf, ("stateEstimate.z", "pm.vbat"), 50)
+    assert _median_step_ms(entries) == 10
     assert abs(entries[-1][1]["stateEstimate.z"] - emu.latest_truth().position_enu_m[2]) < 0.05
     assert 3.0 < entries[-1][1]["pm.vbat"] < 4.3
 
