@@ -1,7 +1,7 @@
 """Benchmark: the emulator in-process and over zenoh in lockstep, with and without lookahead.
 
 Takes in: --seconds of simulated flight per zenoh run, --inprocess-seconds, --vehicles (fleet size),
---radio profile (default crazyradio), --repeats per zenoh configuration, --seed.
+--radio profile (default esb-duplex, MAVLink's), --repeats per zenoh configuration, --seed.
 Gives out (printed), in one run:
   1. emulator only, in-process, no transport: one vehicle hovering on scripted ThrustMoment setpoints
      (500 Hz), physics 1 kHz, firmware, IMU, mocap, truth, both radio channels, MAVLink encode/decode:
@@ -17,7 +17,7 @@ Targets (issue "The emulator"): >= 20x real time in-process for one vehicle; ove
 
 Run: python benchmarks/emulator_bench.py [--seconds 4] [--repeats 3] [--radio lab]
 (--radio lab: 20 ms minimum latency, so lookahead can hide all of a tick's physics behind the responder's
-turn; crazyradio's 0.84 ms, rounded up to the vehicle firmware's next 2 ms cycle (when a delivered
+turn; esb-duplex's 0.84 ms, rounded up to the vehicle firmware's next 2 ms cycle (when a delivered
 command first acts), hides two 1 ms steps per tick. Lookahead only pays when a core is free.)
 The responder child is this file: python benchmarks/emulator_bench.py --responder ENDPOINT PERIOD_S SECONDS
 """
@@ -286,7 +286,7 @@ def main() -> None:
                         help="simulated seconds per zenoh run (longer runs: steadier figures)")
     parser.add_argument("--inprocess-seconds", type=float, default=10.0, help="simulated seconds, in-process")
     parser.add_argument("--vehicles", type=int, default=10, help="fleet size of the second in-process run")
-    parser.add_argument("--radio", default="crazyradio", help="radio profile (name or TOML file)")
+    parser.add_argument("--radio", default="esb-duplex", help="radio profile (name or TOML file)")
     parser.add_argument("--repeats", type=int, default=3, help="runs per zenoh configuration (best is reported)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

@@ -6,7 +6,7 @@ Gives out (printed):
    faithful firmware interleaved, in moments mode (ThrustMoment setpoints at 500 Hz) and attitude mode
    (AttitudeTarget at 100 Hz plus the mocap pose as ExternalPose at 100 Hz), with the faithful/ideal ratio
    (median of the repeats);
-2. lockstep flights through the link (`cfstack fly`, crazyradio profile: the built-in circle, and the
+2. lockstep flights through the link (`cfstack fly`, esb-duplex profile, MAVLink's default: the built-in circle, and the
    test_lab_1 maze from ../shared/worlds when present): real-time factor of the flight loop per mode and
    firmware, and the ratio. Issue 15's floor: moments mode at 500 Hz at least 5x real time with the faithful firmware.
 
@@ -89,7 +89,7 @@ def flight(folder: Path, what: str, mode: str, firmware: str) -> dict:
 def flights_table() -> None:
     flights = ["circle"] + (["maze"] if MAZE.is_file() else [])
     absent = "" if MAZE.is_file() else f" ({MAZE} absent: no maze flights)"
-    print(f"\n2. Lockstep flights through the link (crazyradio, {VEHICLE}): flight-loop real-time factor "
+    print(f"\n2. Lockstep flights through the link (esb-duplex, {VEHICLE}): flight-loop real-time factor "
           f"(simulated s per wall s of the loop){absent}")
     print(f"{'flight':<8} {'mode':<10} {'ideal x':>9} {'faithful x':>11} {'faithful/ideal':>15} "
           f"{'faithful result':>16}")

@@ -1,7 +1,7 @@
 """Flight-time benchmark (issue 5): our link and emulator against the course's published best times.
 
 Prints two tables, measured in one run:
-1. Course flight maps, flown through the link with the crazyradio profile (lockstep), minimum snap with
+1. Course flight maps, flown through the link with the esb-duplex profile (MAVLink's default; lockstep), minimum snap with
    the planning_aggressive limits and the full geometric controller, planned at a margin of 0.32 m;
    flight time against the best published course results (the course's ideal simulator, no radio) and
    the course's own collision check (course_grade.no_collision: no truth point within its 0.25 m robot radius).
@@ -35,7 +35,7 @@ def fly(world: str, args: list[str], mode: str, log: Path) -> dict:
     # the ideal vehicle, as the course's simulator (whose best times these are compared with) and the lab
     # report's ideal simulation: the faithful Crazyflie's attitude loop cannot fly these aggressive plans
     run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(SHARED_WORLDS / f"{world}.json"), "--mode", mode,
-                          "--firmware", "ideal", "--radio", "crazyradio", "--json", "--log", str(log), *args],
+                          "--firmware", "ideal", "--radio", "esb-duplex", "--json", "--log", str(log), *args],
                          capture_output=True, text=True, stdin=subprocess.DEVNULL)
     if not run.stdout.strip():
         return {"result": f"error: {run.stderr.strip().splitlines()[-1] if run.stderr.strip() else run.returncode}"}
@@ -72,7 +72,7 @@ def main() -> int:
             print(f"[{i}/{len(futures)}] {key[0]} {key[1]}: {results[key]['result']} "
                   f"({time.monotonic() - start:.0f} s)", file=sys.stderr, flush=True)
 
-    print(f"\nCourse flight maps ({args.mode} mode, crazyradio profile, lockstep)")
+    print(f"\nCourse flight maps ({args.mode} mode, esb-duplex profile, lockstep)")
     print(f"{'map':18} {'ours (s)':>9} {'course best (s)':>16} {'ratio':>6} {'clearance (m)':>14} {'result':>13}")
     for w in course:
         r = results[(w, "course")]

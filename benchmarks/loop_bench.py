@@ -47,6 +47,7 @@ from link.mavlink.codec import ActuatorLimits, FrameParser
 from link.mavlink.tlog import read_tlog
 from link.messages import ThrustMoment
 from link.transports.base import free_loopback_port
+from model.radio import DEFAULT_MAVLINK_RADIO
 from model.vehicle import load_vehicle
 
 MAZE = "test_lab_1"
@@ -108,7 +109,7 @@ def floors() -> dict[tuple[str, str], float]:
         for mode in TARGET_RTF:
             rate_hz = DEFAULT_RATE_HZ[mode]
             period_s = 1.0 / rate_hz
-            runs = [emulator_bench.fly_zenoh("crazyradio", FLOOR_SECONDS, period_s, True, 0, profile=False,
+            runs = [emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, FLOOR_SECONDS, period_s, True, 0, profile=False,
                                              firmware=firmware)["rtf"] for _ in range(FLOOR_RUNS)]
             out[mode, firmware] = statistics.median(runs)
             print(f"   {mode:9} at {rate_hz:3.0f} Hz, firmware {firmware:9}: floor {out[mode, firmware]:5.1f}x "
@@ -117,7 +118,7 @@ def floors() -> dict[tuple[str, str], float]:
 
 
 def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
-    print("\n1. Lockstep real-time factor over zenoh (crazyradio profile, firmware crazyflie), against the floor")
+    print("\n1. Lockstep real-time factor over zenoh (esb-duplex, MAVLink's default radio, firmware crazyflie), against the floor")
     print(f"   baseline = git {rev} (extracted, run from PYTHONPATH; its emulator child too), new = this tree;")
     print("   RTF = simulated s / wall s of the flight loop (first tick to last); /floor = RTF over the floor's RTF")
     print("   (same mode, same firmware), target >= "

@@ -6,16 +6,20 @@ rides on acknowledgements: model.air_budget), the air time they take per second,
 against the dongle's USB cadence; then, per link and mode, the highest command rate (with the IMU telemetry
 at the same rate on MAVLink, as moments mode needs) that still fits one radio.
 
-Today's emulator still carries each direction on a channel of its own (simulator.radio), so a flight there
-does not feel the shared air this table accounts for (README, CRTP).
+The emulator's `crazyradio` profile flies this model (simulator.radio.EsbAir: one transaction per USB interval,
+one packet each way per transaction); tests/simulator/test_crazyradio_air.py checks that the simulated air and
+this budget agree on what fits.
 
-Usage: python benchmarks/radio_budget.py [--usb-interval-ms 1.0]
+Usage: python benchmarks/radio_budget.py [--usb-interval-ms MS] (default: the crazyradio profile's)
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
+
+import numpy as np
 
 from groundstation.crtp_settings import load_crtp_link_settings
 from groundstation.mission import load_mission_params
@@ -33,9 +37,10 @@ from link.messages import (
     TimeSync,
 )
 from model.air_budget import AirBudget, air_budget
-from model.radio import load_radio_profile
+from model.radio import RadioProfile, load_radio_profile
 from model.vehicle import load_mocap_room, load_vehicle
 from simulator.firmware import load_firmware_params
+from simulator.radio import DOWNLINK, UPLINK, EsbAir, RadioChannel
 
 # CRTP payloads (data bytes after the header), from the packet layouts cflib and the firmware use
 RPYT_BYTES = 14  # <fffH (commander.py send_setpoint)
@@ -44,6 +49,8 @@ LOG_HEADER_BYTES = 4  # block id + u24 timestamp (log.c)
 IMU_LOG_BYTES = LOG_HEADER_BYTES + 6 * 4  # acc.x..z, gyro.x..z as floats
 STATUS_LOG_BYTES = LOG_HEADER_BYTES + 2 + 4 + 1  # supervisor.info u16, pm.vbat float, pm.batteryLevel u8
 COMMAND_RATES_HZ = (50.0, 100.0, 200.0, 250.0, 500.0, 1000.0)
+SIMULATED_S = 10.0  # seconds of each traffic through the simulated air
+PUSH_GRID_S = 0.001  # the streams are pushed on this grid (every rate here divides 1 kHz)
 
 
 def mavlink_traffic(mode: str, command_hz: float, imu_hz: float):
@@ -78,6 +85,25 @@ def crtp_traffic(mode: str, command_hz: float):
     return uplink, downlink
 
 
+def simulate(profile: RadioProfile, uplink, downlink, seconds: float = SIMULATED_S, seed: int = 1) -> str:
+    """The same traffic through the emulator's half-duplex air (simulator.radio.EsbAir): each stream pushed at its
+    rate from a common 1 ms grid; what each direction delivered and its 99th-percentile delay."""
+    air = EsbAir(profile.crazyradio, np.random.default_rng(seed))
+    channels = [RadioChannel(profile, np.random.default_rng(seed + 1 + i), keep_ledger=False, air=air,
+                             direction=direction) for i, direction in enumerate((UPLINK, DOWNLINK))]
+    steps = round(seconds / PUSH_GRID_S)
+    for channel, traffic in zip(channels, (uplink, downlink)):
+        for step in range(steps):
+            t = step * PUSH_GRID_S
+            for hz, size in traffic:
+                if step % max(1, round(1.0 / (hz * PUSH_GRID_S))) == 0:
+                    channel.push(bytes(size), t)
+            channel.pop_due(t)
+    parts = [f"{name} {c.stats.delivered / c.stats.offered:5.1%} delivered, p99 {c.stats.latency_p99_s * 1e3:6.1f} ms"
+             for name, c in zip(("up", "down"), channels)]
+    return "    simulated air: " + "; ".join(parts)
+
+
 def row(label: str, budget: AirBudget) -> str:
     return (f"{label:<44} up {budget.uplink_packets_per_s:7.0f} pkt/s  down {budget.downlink_packets_per_s:7.0f} "
             f"pkt/s  transactions {budget.transactions_per_s:7.0f}/s  air {budget.air_s_per_s:5.2f} s/s  "
@@ -86,21 +112,27 @@ def row(label: str, budget: AirBudget) -> str:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--usb-interval-ms", type=float, default=1.0,
-                   help="one radio transaction per USB interval (the crazyradio profile's source: 'USB works in 1 ms "
-                        "intervals'); 0 leaves USB out")
+    profile = load_radio_profile("crazyradio")
+    link = profile.crazyradio
+    p.add_argument("--usb-interval-ms", type=float, default=link.usb_interval_s * 1000.0,
+                   help="one radio transaction per USB interval (default: the crazyradio profile's, whose source says "
+                        "'USB works in 1 ms intervals'); 0 leaves USB out")
     args = p.parse_args()
-    link = load_radio_profile("crazyradio").crazyradio
     usb = 1000.0 / args.usb_interval_ms if args.usb_interval_ms > 0 else float("inf")
     imu_hz = load_vehicle("cf21").imu.rate_hz
     print(f"one Crazyradio at {link.air_rate_bps / 1e6:g} Mbit/s, per-attempt loss {link.packet_loss_probability:g}, "
           f"USB {usb:g} transactions/s\n")
-    print("as cfstack flies today:")
+    usb_profile = dataclasses.replace(profile, crazyradio=dataclasses.replace(
+        link, usb_interval_s=args.usb_interval_ms / 1000.0))
+    print(f"as cfstack flies today (each also through the emulator's crazyradio air for {SIMULATED_S:g} s):")
     for mode, hz in (("moments", 500.0), ("attitude", 100.0)):
-        print(row(f"MAVLink {mode}, command {hz:g} Hz, IMU {imu_hz:g} Hz", air_budget(link, *mavlink_traffic(
-            mode, hz, imu_hz), usb)))
+        traffic = mavlink_traffic(mode, hz, imu_hz)
+        print(row(f"MAVLink {mode}, command {hz:g} Hz, IMU {imu_hz:g} Hz", air_budget(link, *traffic, usb)))
+        print(simulate(usb_profile, *traffic))
     for mode, hz in (("moments", 500.0), ("attitude", 100.0)):
-        print(row(f"CRTP {mode}, command {hz:g} Hz, IMU 100 Hz", air_budget(link, *crtp_traffic(mode, hz), usb)))
+        traffic = crtp_traffic(mode, hz)
+        print(row(f"CRTP {mode}, command {hz:g} Hz, IMU 100 Hz", air_budget(link, *traffic, usb)))
+        print(simulate(usb_profile, *traffic))
     print("\nthe highest command rate that fits (MAVLink: IMU telemetry at the command rate):")
     for name, traffic in (("MAVLink moments", lambda hz: mavlink_traffic("moments", hz, hz)),
                           ("MAVLink attitude", lambda hz: mavlink_traffic("attitude", hz, hz)),
@@ -108,6 +140,8 @@ def main() -> int:
                           ("CRTP attitude", lambda hz: crtp_traffic("attitude", hz))):
         fitting = [hz for hz in COMMAND_RATES_HZ if air_budget(link, *traffic(hz), usb).fits]
         print(f"  {name:<18} {max(fitting):g} Hz" if fitting else f"  {name:<18} none of {COMMAND_RATES_HZ}")
+        for hz in ([max(fitting)] if fitting else []) + [hz for hz in COMMAND_RATES_HZ if hz not in fitting][:1]:
+            print(f"  at {hz:g} Hz" + simulate(usb_profile, *traffic(hz))[3:])
     return 0
 
 

@@ -27,7 +27,7 @@ class Flight:
 
 
 def fly(world: str | Path | None = None, *, controller=None, trajectory=None, planner=None,
-        mode: str = "moments", radio: str = "crazyradio", clock: str = "lockstep", seed: int = 1,
+        mode: str = "moments", radio: str | None = None, clock: str = "lockstep", seed: int = 1,
         log: str | Path | None = None, **options) -> Flight:
     """Fly once, as `cfstack fly` does; see the module docstring for the arguments."""
     from groundstation import cli
@@ -39,7 +39,7 @@ def fly(world: str | Path | None = None, *, controller=None, trajectory=None, pl
             argv += [f"--{kind}", str(value)]
         elif value is not None:
             objects[kind] = value
-    argv += ["--mode", mode, "--radio", radio, "--clock", clock, "--seed", str(seed)]
+    argv += ["--mode", mode, "--clock", clock, "--seed", str(seed)] + (["--radio", radio] if radio else [])
     if log is not None:
         argv += ["--log", str(log)]
     argv += _option_words(options)

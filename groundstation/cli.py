@@ -159,7 +159,8 @@ def _planning_arguments(p: argparse.ArgumentParser) -> None:
 def _emulator_arguments(p: argparse.ArgumentParser) -> None:
     """The emulator child that fly and step start."""
     g = p.add_argument_group("emulator child")
-    g.add_argument("--radio", default="crazyradio", help="radio profile for the emulator: name or TOML file")
+    g.add_argument("--radio", help="radio profile for the emulator: name or TOML file (default: the link's own, "
+                                   "esb-duplex for MAVLink, crazyradio for CRTP; see `cfstack emulator --help`)")
     g.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep (default) or realtime")
     g.add_argument("--seed", type=seed, default=1, help="seed of every random source (0, 1, 2, ...)")
@@ -403,9 +404,11 @@ class EmulatorChild:
     def __init__(self, args, world_path: str | None, start: np.ndarray | None, airborne: bool, clock: str):
         self.endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
         cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
-               "--radio", args.radio, "--seed", str(args.seed), "--id", args.prefix,
+               "--seed", str(args.seed), "--id", args.prefix,
                "--vehicle-model", args.vehicle_model, "--firmware", args.firmware,
                "--vehicle-draw", args.vehicle_draw, "--quiet"]
+        if args.radio is not None:
+            cmd += ["--radio", args.radio]
         if world_path:
             cmd += ["--world", world_path]
         if start is not None:  # the pre-flight-checked start (it may have been moved inside the bounds)
@@ -482,7 +485,33 @@ def fly(args: argparse.Namespace, objects: dict | None = None):
     user_code = _user_code(args, world, objects)
     track, goal, extra, plan = _track(args, world, user_code)
     opts = _options(args, world, track, goal, extra, plan, args.clock, zenoh_options_from_args(args), user_code)
+    _warn_if_one_crazyradio_cannot_carry_mavlink(args)
     return _fly_with_emulator(args, world, airborne, opts)
+
+
+def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:
+    """MAVLink on the one-dongle `crazyradio` model: its IMU telemetry alone (HIGHRES_IMU at the IMU rate, a few
+    radio packets a frame) needs more transactions than the dongle's USB runs. Say so before flying; the
+    whole account is benchmarks/radio_budget.py."""
+    if args.link != "mavlink" or args.radio is None:
+        return
+    from link.mavlink.codec import ActuatorLimits, Codec
+    from link.messages import ImuSample
+    from model.radio import load_radio_profile
+
+    profile = load_radio_profile(args.radio)
+    cr = profile.crazyradio
+    if profile.model != "crazyradio" or cr.usb_interval_s <= 0.0:
+        return
+    vehicle = load_vehicle(args.vehicle_model)
+    frame = Codec(system_id=1, limits=ActuatorLimits.from_vehicle(vehicle)).encode(
+        ImuSample(0.0, (0.0, 0.0, 9.8), (0.0, 0.0, 0.0)))
+    packets_per_s = vehicle.imu.rate_hz * -(-len(frame) // cr.data_bytes_per_packet)
+    transactions_per_s = 1.0 / cr.usb_interval_s
+    if packets_per_s > transactions_per_s:
+        print(f"cfstack fly: warning: radio {profile.name} is one Crazyradio: MAVLink's {vehicle.imu.rate_hz:g} Hz IMU "
+              f"telemetry alone is {packets_per_s:.0f} radio packets/s down and it carries {transactions_per_s:.0f}; "
+              f"expect a late, lossy downlink and a failsafe (python benchmarks/radio_budget.py)", file=sys.stderr)
 
 
 def _fly_with_emulator(args, world: World | None, airborne: bool, opts: SessionOptions):

@@ -57,6 +57,7 @@ class LinkHealth:
 
     last_downlink_s: float | None = None
     last_heartbeat: Heartbeat | None = None
+    last_heartbeat_s: float | None = None  # when it arrived (our clock)
     last_status: BatteryStatus | None = None
     uplink_received: int = 0  # unwrapped from the vehicle's 16-bit counter
     last_status_s: float | None = None  # when the newest status report arrived (our clock)
@@ -129,6 +130,7 @@ class FlightLoop:
                 self.estimator.add_imu(msg)
             elif isinstance(msg, Heartbeat):
                 self.health.last_heartbeat = msg
+                self.health.last_heartbeat_s = now_s
             elif isinstance(msg, TimeSync):
                 self._timesync_reply(msg, now_s)
             elif isinstance(msg, BatteryStatus):
@@ -198,6 +200,7 @@ class FlightLoop:
             velocity_enu_mps=np.asarray(est.velocity_enu_mps, float), armed=hb.armed,
             crashed=hb.mode == VehicleMode.CRASHED, mocap_age_s=self.mocap_age(now_s, est),
             estimator_healthy=filter_ok, downlink_age_s=downlink_age, landing=hb.mode == VehicleMode.LANDING,
+            heartbeat_age_s=now_s - self.health.last_heartbeat_s,
         )
 
     def mocap_age(self, now_s: float, est) -> float:
@@ -424,7 +427,7 @@ class FlightLoop:
         stats = self.link.radio.stats
         total = stats.rx_frames + stats.sequences.lost
         if total > 500 and stats.rx_frames / total < self.p.delivery_ratio_min:
-            self._warn_once("delivery", f"downlink delivery {stats.rx_frames / total:.2f} below "
+            self._warn_once("delivery", f"downlink delivery {stats.rx_frames / total:.3f} below "
                                         f"{self.p.delivery_ratio_min:.2f}")
 
     def _warn_once(self, key: str, message: str) -> None:

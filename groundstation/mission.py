@@ -86,6 +86,7 @@ class MissionParams:
     mocap_hold_after_s: float
     mocap_descend_after_s: float
     downlink_silent_after_s: float
+    heartbeat_lost_after_s: float
     user_code_hold_s: float
     mocap_rate_min_hz: float
     mocap_rate_max_hz: float
@@ -113,7 +114,8 @@ def load_mission_params(name_or_path: str = "mission") -> MissionParams:
         goal_position_tolerance_m=goal.number("position_tolerance_m", **pos),
         goal_speed_tolerance_mps=goal.number("speed_tolerance_mps", **pos),
         **{k: failsafe.number(k, **pos) for k in ("mocap_hold_after_s", "mocap_descend_after_s",
-                                                   "downlink_silent_after_s", "user_code_hold_s")},
+                                                   "downlink_silent_after_s", "heartbeat_lost_after_s",
+                                                   "user_code_hold_s")},
         **{k: health.number(k, **pos) for k in ("mocap_rate_min_hz", "mocap_rate_max_hz", "delivery_ratio_min",
                                                  "latency_max_ms")},
         landing=LandingSettings(**{k: landing.number(k, **positive) for k in (
@@ -136,6 +138,7 @@ class VehicleView:
     estimator_healthy: bool
     downlink_age_s: float
     landing: bool = False  # the vehicle's own LAND is under way (heartbeat mode LANDING)
+    heartbeat_age_s: float = 0.0  # since the newest vehicle HEARTBEAT arrived (our clock)
 
 
 @dataclass
@@ -266,6 +269,8 @@ class Mission:
             return self._reset(t, view)
         if view.crashed:
             return self._crashed(t)
+        if view.heartbeat_age_s > self.p.heartbeat_lost_after_s:
+            return self._disconnected(t, view)
         failsafe = self._check_failsafes(t, view)
         if failsafe is not None:
             return failsafe
@@ -278,6 +283,18 @@ class Mission:
             else:
                 self._begin_landing(t, view)
         return self._HANDLERS[self.phase](self, t, view)
+
+    def _disconnected(self, t: float, view: VehicleView) -> MissionStep:
+        """No vehicle HEARTBEAT for heartbeat_lost_after_s (MAVLink's disconnection): whatever the phase, the
+        ground station no longer knows whether the vehicle is armed, so it stops commanding and ends; the
+        vehicle's own watchdog takes over. After the result (landing, disarming) the landing is unconfirmed."""
+        reason = f"no heartbeat from the vehicle for {view.heartbeat_age_s:.2f} s"
+        if self.result is None:
+            self._fail(t, "failsafe", reason)
+        else:
+            self.landing.note = self.landing.note or f"unconfirmed: {reason}"
+        self._enter(Phase.DONE, t)
+        return MissionStep(Phase.DONE, None)
 
     def _crashed(self, t: float) -> MissionStep:
         """The vehicle reports CRASHED: after the goal (while landing) it is the landing's outcome, else the
@@ -423,9 +440,16 @@ class Mission:
         if not view.armed or self.phase in _NO_MOCAP_FAILSAFE_PHASES:
             return None
         lost = view.mocap_age_s
-        if lost > self.p.mocap_descend_after_s or not view.estimator_healthy:
-            self._fail(t, "failsafe", "estimator unhealthy" if lost <= self.p.mocap_descend_after_s
-                       else f"mocap lost for {lost:.2f} s")
+        # Mocap that keeps arriving but always too old (a saturated radio delays the IMU the filter runs on)
+        # never ages past the descent threshold: a hold counts as mocap lost since it began, so it cannot last.
+        stale = lost
+        if self.phase == Phase.FAILSAFE_HOLD:
+            stale = max(lost, t - self.phase_start_s + self.p.mocap_hold_after_s)
+        if stale > self.p.mocap_descend_after_s or not view.estimator_healthy:
+            reason = "estimator unhealthy" if stale <= self.p.mocap_descend_after_s else (
+                f"mocap lost for {lost:.2f} s" if lost == stale else
+                f"mocap stale for {stale:.2f} s (each fix arrived {lost:.2f} s old)")
+            self._fail(t, "failsafe", reason)
             # Without mocap the ground station's estimate drifts; the vehicle's own LAND descends on what it
             # measures itself until the floor holds it, then disarms.
             self._enter(Phase.FAILSAFE_DESCENT, t)

@@ -1,10 +1,16 @@
 """Radio profiles: what a simulated radio link does to frames, as both sides may read it.
 
-Takes in: a radio profile TOML file (built-in names ideal, crazyradio, lab, harsh in model/params/radio/,
-or any file of the same form).
+Takes in: a radio profile TOML file (built-in names ideal, crazyradio, esb-duplex, lab, harsh in
+model/params/radio/, or any file of the same form).
 Gives out: `RadioProfile` (latency and jitter, i.i.d. and bursty loss, duplication, corruption, queue,
 the Crazyradio's ESB timing and retries), checked field by field; a wrong or missing field is a
-ConfigError naming the file and the field. The channel that applies a profile in simulation time is
+ConfigError naming the file and the field; the default profile of each protocol's radio.
+
+Models: "simple" (latency, loss, queue); "esb-duplex" (each direction on an Enhanced ShockBurst air of its
+own: frames cut into nRF24 packets, each retried); "crazyradio" (one dongle: a half-duplex ESB link whose
+transactions, one per USB interval, carry at most one packet each way; simulator.radio.EsbAir).
+MAVLink flies on esb-duplex by default because its traffic does not fit one Crazyradio
+(benchmarks/radio_budget.py); CRTP, the Crazyflie's own protocol, on crazyradio. The channel that applies a profile in simulation time is
 simulator.radio.RadioChannel; a ground station or a sweep reads the profile only to describe or vary it.
 """
 
@@ -15,7 +21,10 @@ from pathlib import Path
 
 from model.config import Params, resolve
 
-MODELS = ("simple", "crazyradio")
+MODELS = ("simple", "esb-duplex", "crazyradio")
+ESB_MODELS = ("esb-duplex", "crazyradio")  # the models with a [crazyradio] table
+DEFAULT_MAVLINK_RADIO = "esb-duplex"
+DEFAULT_CRTP_RADIO = "crazyradio"
 JITTER_LAWS = ("uniform", "normal")
 
 
@@ -60,6 +69,8 @@ class CrazyradioLink:
     auto_retransmit_delay_s: float  # ARD: end of a failed transmission to the next attempt
     auto_retransmit_count: int  # ARC: retransmissions after the first attempt
     packet_loss_probability: float  # per attempt: the packet or its ACK is lost
+    usb_interval_s: float = 0.0  # model crazyradio: one transaction per USB interval (0: the air alone paces)
+    host_retries: int = 0  # model crazyradio: transactions the host runs for one packet before giving it up
 
     def time_on_air_s(self, payload_bytes: int) -> float:
         """nRF24L01+ T_oa = (8 (preamble + address + payload + CRC) + packet-control bits) / rate."""
@@ -113,8 +124,11 @@ class RadioProfile:
     def min_latency_s(self) -> float:
         """A true lower bound of (delivery time - offer time) for any frame."""
         floor = self.base_latency_s + self.jitter_bounds_s[0]
-        if self.crazyradio is not None:
-            floor += self.crazyradio.attempt_ok_s(0)
+        cr = self.crazyradio
+        if self.model == "crazyradio":  # an uplink packet sent the instant a transaction starts
+            floor += cr.settling_s + cr.time_on_air_s(cr.header_bytes_per_packet)
+        elif cr is not None:
+            floor += cr.attempt_ok_s(0)
         return max(0.0, floor)
 
 
@@ -149,6 +163,7 @@ _QUEUE_FIELDS = {"bandwidth_bps", "capacity_frames"}
 _CRAZYRADIO_FIELDS = {"air_rate_bps", "data_bytes_per_packet", "header_bytes_per_packet", "preamble_bytes",
                       "address_bytes", "packet_control_bits", "crc_bytes", "ack_payload_bytes", "settling_s",
                       "auto_retransmit_delay_s", "auto_retransmit_count", "packet_loss_probability"}
+_TRANSACTION_FIELDS = {"usb_interval_s", "host_retries"}  # model crazyradio only
 
 
 def _table(p: Params, key: str, allowed: set[str]) -> Params:
@@ -157,8 +172,13 @@ def _table(p: Params, key: str, allowed: set[str]) -> Params:
     return table
 
 
-def _load_crazyradio(t: Params) -> CrazyradioLink:
+def _load_crazyradio(t: Params, model: str) -> CrazyradioLink:
+    transactions = {}
+    if model == "crazyradio":
+        transactions = {"usb_interval_s": t.number("usb_interval_s", minimum=0.0),
+                        "host_retries": t.integer("host_retries", minimum=1)}
     return CrazyradioLink(
+        **transactions,
         air_rate_bps=t.number("air_rate_bps", minimum=1.0),
         data_bytes_per_packet=t.integer("data_bytes_per_packet", minimum=1),
         header_bytes_per_packet=t.integer("header_bytes_per_packet", minimum=0),
@@ -179,8 +199,8 @@ def radio_profile_path(name_or_path: str | Path) -> Path:
     return resolve(name_or_path, "model", "params/radio", "radio profile")
 
 
-def load_radio_profile(name_or_path: str | Path = "crazyradio") -> RadioProfile:
-    """A built-in profile (ideal, crazyradio, lab, harsh) or a TOML file.
+def load_radio_profile(name_or_path: str | Path = DEFAULT_CRTP_RADIO) -> RadioProfile:
+    """A built-in profile (ideal, crazyradio, esb-duplex, lab, harsh) or a TOML file.
 
     Raises model.errors.ConfigError naming the file and the field when a field is missing, misspelt
     or out of range.
@@ -203,10 +223,12 @@ def load_radio_profile(name_or_path: str | Path = "crazyradio") -> RadioProfile:
     if preserve_order and reorder_probability > 0.0:
         raise latency.error("reorder_probability", "must be 0 when preserve_order = true")
     crazyradio = None
-    if model == "crazyradio":
-        crazyradio = _load_crazyradio(_table(p, "crazyradio", _CRAZYRADIO_FIELDS))
+    if model in ESB_MODELS:
+        allowed = _CRAZYRADIO_FIELDS | (_TRANSACTION_FIELDS if model == "crazyradio" else set())
+        crazyradio = _load_crazyradio(_table(p, "crazyradio", allowed), model)
     elif p.has("crazyradio"):
-        raise p.error("crazyradio", "given, but model is 'simple' (set model = \"crazyradio\" to use it)")
+        raise p.error("crazyradio", "given, but model is 'simple' (set model = \"crazyradio\" or "
+                                    "\"esb-duplex\" to use it)")
 
     return RadioProfile(
         name=p.string("name"),

@@ -60,7 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="vehicle name (cf21, crazyflie, cf2x) or TOML file (default: the firmware's: cf21 with "
                         "--firmware crazyflie, crazyflie with --firmware ideal)")
     p.add_argument("--mocap-room", default="vicon", help="mocap room name or TOML file")
-    p.add_argument("--radio", default="crazyradio", help="radio profile name (ideal, crazyradio, lab, harsh) or TOML")
+    p.add_argument("--radio", help="radio profile of every radio, MAVLink's and CRTP's: a name (ideal, crazyradio, "
+                                   "esb-duplex, lab, harsh) or TOML file; default: esb-duplex for MAVLink (its traffic "
+                                   "does not fit one Crazyradio), crazyradio for CRTP")
     p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
                    help="realtime (default, as `cfstack groundstation`): paced by the wall clock; lockstep: "
                         "simulation time advances only as the ground stations acknowledge its ticks")
@@ -113,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
-    from model.radio import load_radio_profile
+    from model.radio import DEFAULT_CRTP_RADIO, DEFAULT_MAVLINK_RADIO, load_radio_profile
     from model.vehicle import default_vehicle_model, load_mocap_room, load_vehicle
     from model.world import load_world
     from simulator.emulator_config import EmulatorConfig
@@ -133,7 +135,8 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
     return EmulatorConfig(
         vehicle=load_vehicle(args.vehicle_model or default_vehicle_model(args.firmware)),
         mocap_room=load_mocap_room(args.mocap_room),
-        radio=load_radio_profile(args.radio), world=world, vehicles=args.vehicles, seed=args.seed,
+        radio=load_radio_profile(args.radio or DEFAULT_MAVLINK_RADIO),
+        crtp_radio=load_radio_profile(args.radio or DEFAULT_CRTP_RADIO), world=world, vehicles=args.vehicles, seed=args.seed,
         clock=args.clock, physics_rate_hz=args.physics_rate, prefix=args.prefix,
         connection="zenoh", zenoh_options=_zenoh_options(args), radio_link=args.radio_link,
         start_positions_enu_m=starts,
@@ -192,8 +195,9 @@ def emulator_command(argv: list[str]) -> int:
     with emulator:
         radio_link = ("on the keys" if config.radio_link is None
                       else f"on {config.radio_link}" + (" (vehicle N: PORT+N-1)" if config.vehicles > 1 else ""))
-        log.info("emulator up: %d vehicle(s), %s clock, radio %s %s, seed %d, keys %s/vehicle/1..%d/..., "
-                 "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, radio_link, config.seed,
+        log.info("emulator up: %d vehicle(s), %s clock, radio %s (CRTP %s) %s, seed %d, keys %s/vehicle/1..%d/..., "
+                 "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, config.crtp_radio_profile.name,
+                 radio_link, config.seed,
                  config.prefix, config.vehicles, emulator.lockstep.lookahead_horizon_s() * 1e3)
         emulator.run()
     if args.radio_ledger:

@@ -184,7 +184,8 @@ class Emulator:
         `uplink_parser` (the vehicle's frame parser counters: frames_ok, crc_failures, unsigned_rejected,
         bad_signatures, replays_rejected, signature_failures, ...), `uplink_foreign` (uplink samples
         not from the ground station, see GroundFrameGate) and `mocap_cut`."""
-        report = {"seed": self.config.seed, "radio": self.config.radio.name, "vehicles": {}}
+        report = {"seed": self.config.seed, "radio": self.config.radio.name,
+                  "crtp_radio": self.config.crtp_radio_profile.name, "vehicles": {}}
         for node in self.nodes:
             entry = {}
             for name, radio in (("uplink", node.uplink_radio), ("downlink", node.downlink_radio)):

@@ -26,7 +26,7 @@ MAX_VEHICLES = MAX_VEHICLE_ID  # one MAVLink system id each
 class EmulatorConfig:
     vehicle: Vehicle
     mocap_room: MocapRoom
-    radio: RadioProfile
+    radio: RadioProfile  # the MAVLink radio's (both directions)
     world: World | None
     vehicles: int = 1
     seed: int = 0
@@ -60,12 +60,17 @@ class EmulatorConfig:
     crtp_base_port: int | None = None
     crtp_host: str = "127.0.0.1"
     crtp_required: bool = True  # False (the CLI's default port): a taken port is a warning, not an error
+    crtp_radio: RadioProfile | None = None  # the CRTP radio's; None: `radio`'s
     # the onboard positioning deck: with CRTP on, each mocap frame also reaches the vehicle's estimator at
     # its release time, as a Lighthouse or Loco deck's fix would, unless a ground station streams extpose
     position_deck: bool = True
     # A fresh Signing with the key of `signing` (one per vehicle, for GroundFrameGate's own replay state).
     # None with signing on: the gate can only require signed frames from the ground station's system id.
     signing_factory: Callable[[], object | None] | None = None
+
+    @property
+    def crtp_radio_profile(self) -> RadioProfile:
+        return self.crtp_radio if self.crtp_radio is not None else self.radio
 
     def check(self) -> None:
         """One-line UserError for settings no emulator can run with."""

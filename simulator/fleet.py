@@ -9,7 +9,9 @@ profiled. With the crazyflie firmware, CRTP (simulator.crtp_service) on the vehi
 endpoint per vehicle for cflib clients (realtime), then also the positioning deck: each mocap frame
 into the onboard estimator at its release time while no ground station streams extpose.
 
-CRTP crosses radios of its own (the profile's, seeded after the MAVLink ones). A packet the air loses
+CRTP crosses radios of its own (config.crtp_radio's, seeded after the MAVLink ones). With a "crazyradio"
+profile each protocol's two directions share one air (simulator.radio.EsbAir, seeded after the radios):
+one dongle per protocol, so CRTP and MAVLink never share air. A packet the air loses
 is offered again one physics step later, and the ones behind it wait (head of line): cflib's radio
 driver resends a packet until it is acknowledged, giving up after CRTP_LINK_ATTEMPTS, and the
 Crazyflie's reply rides on an acknowledgement that is resent with it. So CRTP is delayed, not lost, by
@@ -53,13 +55,16 @@ from link.messages import ExternalPose, RadioStatus
 from link.transports import Transport, open_transport
 from link.transports.table import KEYED_SCHEMES, for_vehicle, parse_connection, transport_options
 from model.errors import UserError
+from model.radio import RadioProfile
 from model.world import World
 from simulator.crtp_service import CrtpDatagram, CrtpService
 from simulator.emulator_config import EmulatorConfig
 from simulator.faults import covered
 from simulator.profiling import time_parts
 from simulator.publishing import CRTP, DOWNLINK, MOCAP, TRUTH, Outbox
-from simulator.radio import RadioChannel
+from simulator.radio import DOWNLINK as RADIO_DOWNLINK
+from simulator.radio import UPLINK as RADIO_UPLINK
+from simulator.radio import EsbAir, RadioChannel
 from simulator.vehicle_sim import SimVehicle
 
 log = logging.getLogger("cfstack.emulator")
@@ -108,6 +113,17 @@ class GroundFrameGate:
         return self.signing is None or self.signing.check(frame, frame[5], frame[6]) is SignatureCheck.OK
 
 
+def _radio_pair(profile: RadioProfile, keep_ledger: bool, prefix: str, suffix: str, up_seed: np.random.SeedSequence,
+                down_seed: np.random.SeedSequence, air_seed: np.random.SeedSequence) -> tuple[RadioChannel, RadioChannel]:
+    """(uplink, downlink) channels of one radio; with a "crazyradio" profile both on one shared EsbAir."""
+    air = EsbAir(profile.crazyradio, np.random.default_rng(air_seed)) if profile.model == "crazyradio" else None
+    up = RadioChannel(profile, np.random.default_rng(up_seed), name=f"{prefix}uplink {suffix}", keep_ledger=keep_ledger,
+                      air=air, direction=RADIO_UPLINK)
+    down = RadioChannel(profile, np.random.default_rng(down_seed), name=f"{prefix}downlink {suffix}",
+                        keep_ledger=keep_ledger, air=air, direction=RADIO_DOWNLINK)
+    return up, down
+
+
 class VehicleNode:
     """One emulated vehicle, its two radio channels, its codecs and (once opened) its zenoh keys.
 
@@ -117,8 +133,9 @@ class VehicleNode:
 
     def __init__(self, config: EmulatorConfig, vehicle_id: int, rng_seed: np.random.SeedSequence,
                  start: tuple[float, float, float]):
-        # the CRTP radios' seeds come after the first three, which stay what they were before CRTP had radios
-        sim_seed, up_seed, down_seed, crtp_up_seed, crtp_down_seed = rng_seed.spawn(5)
+        # the CRTP radios' seeds come after the first three, which stay what they were before CRTP had radios,
+        # and the shared airs' after those (SeedSequence children keep their index)
+        sim_seed, up_seed, down_seed, crtp_up_seed, crtp_down_seed, air_seed, crtp_air_seed = rng_seed.spawn(7)
         self.vehicle_id = vehicle_id
         self.keys = VehicleKeys(config.prefix, vehicle_id)
         self.sim = SimVehicle(config.vehicle, np.random.default_rng(sim_seed), world=config.world,
@@ -128,16 +145,12 @@ class VehicleNode:
                               variation=config.variation, ideal_parts=config.ideal_parts)
         if not self.sim.draw.is_nominal:
             log.info("vehicle %d draws %s (not told to the ground station)", vehicle_id, self.sim.draw.describe())
-        self.uplink_radio = RadioChannel(config.radio, np.random.default_rng(up_seed), name=f"uplink {vehicle_id}",
-                                         keep_ledger=config.keep_ledger)
-        self.downlink_radio = RadioChannel(config.radio, np.random.default_rng(down_seed),
-                                           name=f"downlink {vehicle_id}", keep_ledger=config.keep_ledger)
-        # CRTP (cflib clients) on radios of their own with the same profile: the air is not yet shared with
-        # the MAVLink channels (that is the half-duplex Crazyradio model of issue 16)
-        self.crtp_uplink_radio = RadioChannel(config.radio, np.random.default_rng(crtp_up_seed),
-                                              name=f"crtp uplink {vehicle_id}", keep_ledger=config.keep_ledger)
-        self.crtp_downlink_radio = RadioChannel(config.radio, np.random.default_rng(crtp_down_seed),
-                                                name=f"crtp downlink {vehicle_id}", keep_ledger=config.keep_ledger)
+        self.uplink_radio, self.downlink_radio = _radio_pair(config.radio, config.keep_ledger, "", f"{vehicle_id}",
+                                                             up_seed, down_seed, air_seed)
+        # CRTP (cflib clients) on a radio of its own: a second dongle, never MAVLink's air
+        self.crtp_uplink_radio, self.crtp_downlink_radio = _radio_pair(
+            config.crtp_radio_profile, config.keep_ledger, "crtp ", f"{vehicle_id}", crtp_up_seed, crtp_down_seed,
+            crtp_air_seed)
         self._crtp_last_try_s = [-math.inf, -math.inf]  # uplink, downlink: the latest attempt's time
         self.crtp_lost = 0  # packets given up after CRTP_LINK_ATTEMPTS failed attempts
         limits = ActuatorLimits.from_vehicle(config.vehicle)

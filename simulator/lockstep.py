@@ -14,10 +14,11 @@ lockstep clock stands still (and says so every WAIT_LOG_PERIOD_S).
 Lockstep with conservative lookahead. After publishing tick k at t_k the emulator does not know when
 tick k+1 will be (the acks say), but it knows that nothing the ground station sends in answer to tick
 k is pushed into an uplink radio before t_k, hence delivered to a vehicle before t_k + L, with
-L = RadioChannel.min_latency_s (a true lower bound), and that a vehicle's firmware takes delivered
+L = the smallest RadioChannel.min_latency_s of the vehicle's uplink radios, MAVLink's and CRTP's (a true
+lower bound), and that a vehicle's firmware takes delivered
 messages only at its next 500 Hz cycle (SimVehicle.first_effect_s). So while it waits for the acks it
 may already run every physics step that STARTS before horizon_s = min over vehicles of the first
-firmware cycle at or after t_k + L (with crazyradio's 0.84 ms and 2 ms cycles: one whole 500 Hz tick).
+firmware cycle at or after t_k + L (with esb-duplex's 0.84 ms or crazyradio's 0.17 ms and 2 ms cycles: one whole 500 Hz tick).
 Frames those steps produce are kept in each vehicle's outbox,
 stamped with the step count at which a non-lookahead emulator would have published them, and are
 published with the first tick whose time reaches that stamp; tick k's view is therefore unchanged.
@@ -29,7 +30,7 @@ lookahead (tests/simulator/test_emulator*.py and tests/groundstation/test_link_a
 Pipelined ticks. When every ground station's acks carry a standing period (ClockAck.period_ns: the
 tick after t comes at t + period), the next tick's time is decided before the last tick's acks are
 in, and the emulator publishes it as soon as the physics reaches it within the horizon. With
-crazyradio and 500 Hz ticks the horizon covers a whole tick, so tick k+1 goes out while the ground
+the default radios and 500 Hz ticks the horizon covers a whole tick, so tick k+1 goes out while the ground
 station still computes tick k and the zenoh round trip leaves the serial path (the ground station
 takes exactly each tick's announced samples, so it sees the same inputs either way).
 A tick's frames go out in one burst, packed per key into as few samples as possible (pack_samples),
@@ -252,7 +253,8 @@ class LockstepClock:
         emu = self.emulator
         if not emu.config.lookahead:
             return offered_s
-        return node.sim.first_effect_s(offered_s + node.uplink_radio.min_latency_s)
+        return node.sim.first_effect_s(offered_s + min(node.uplink_radio.min_latency_s,
+                                                       node.crtp_uplink_radio.min_latency_s))
 
     def lookahead_horizon_s(self) -> float:
         """The horizon right after a tick at tick_time_s, before any answer to it (benchmarks, tests)."""

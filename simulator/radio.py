@@ -1,7 +1,8 @@
 """The simulated radio: one impaired, one-way channel carrying opaque frames in simulation time.
 
 Takes in: a `RadioProfile` (model.radio: model/params/radio/*.toml, or any TOML file), a seeded
-numpy.random.Generator, and frames (bytes, e.g. MAVLink 2 frames of 12..280 bytes) offered with
+numpy.random.Generator, for model "crazyradio" the `EsbAir` the channel shares with the opposite direction
+(its own when none is given), and frames (bytes, e.g. MAVLink 2 frames of 12..280 bytes) offered with
 `push(frame, t_s)` at non-decreasing simulation times t_s (s).
 Gives out: `pop_due(t_s)`: the frames whose delivery time is <= t_s, in delivery order (ties keep
 offer order), each possibly bit-corrupted or duplicated; `next_delivery_s()` and `min_latency_s`
@@ -13,12 +14,17 @@ seed and the same pushes give byte-identical deliveries, whatever the pattern of
 What happens to frame i offered at t_i (s), in this order:
  1. Queue. The channel carries one frame at a time, first come first served. Frame i starts when
     the channel is free, s_i = max(t_i, e_{i-1}), and occupies it for a service time
-        S_i = 8 L_i / B  (+ its Crazyradio air time, model "crazyradio"),
+        S_i = 8 L_i / B  (+ its ESB air time, model "esb-duplex"),
     L_i in bytes, B = `queue.bandwidth_bps` (no serialisation term when B = 0), e_i = s_i + S_i.
+    Model "crazyradio" instead: the frame's packets take the next transactions of the shared `EsbAir`
+    (one packet per transaction and direction, see EsbAir), s_i is its first transaction's start and e_i
+    the arrival of its last packet: at the vehicle when its uplink packet is on the air, at the host when
+    the downlink packet's transaction ends. A packet whose transaction fails takes the next one; after
+    `host_retries` failed transactions in a row the frame is lost (cause "retries").
     A frame that would have to wait while `queue.capacity_frames` frames already wait is dropped
     (cause "queue") and takes no channel time.
  2. Loss on the air (the frame still used the channel):
-    - model "crazyradio": the frame travels in n = ceil(L / d) nRF24 packets (d data bytes each),
+    - model "esb-duplex": the frame travels in n = ceil(L / d) nRF24 packets (d data bytes each),
       every attempt of a packet fails (packet or ACK lost) with probability p, and a packet is sent
       at most ARC + 1 times; the frame is lost (cause "retries") when any packet fails them all:
           P(lost) = 1 - (1 - p^(ARC+1))^n.
@@ -55,7 +61,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from model.radio import RadioProfile
+from model.radio import CrazyradioLink, RadioProfile
 
 UINT8_UNKNOWN = 255  # MAVLink RADIO_STATUS: UINT8_MAX means "invalid/unknown"
 RSSI_MAX = 254  # MAVLink RADIO_STATUS rssi range is 0..254
@@ -138,14 +144,133 @@ def _uniform_stream(rng: np.random.Generator):
     return itertools.chain.from_iterable(iter(lambda: rng.random(_UNIFORM_BLOCK).tolist(), None))
 
 
+
+UPLINK, DOWNLINK = "uplink", "downlink"
+_TRIM_SLOTS = 4096  # transactions kept before the air drops those every direction has passed (memory only)
+
+
+class EsbAir:
+    """One Crazyradio's transactions, shared by the two directions of one vehicle's radio (model "crazyradio").
+
+    Transaction k starts at s_k and lasts max(USB interval, its air): F_k failed attempts of T_fail each and,
+    when an attempt succeeds (F_k <= ARC), one successful attempt T_ok; F_k = ARC + 1 means every attempt
+    failed and the transaction carried nothing. P(F_k >= j) = p^j (capped at ARC + 1), drawn by inversion in
+    transaction order from the air's own generator; s_0 is uniform on [0, USB interval) (the USB frame phase).
+    So the transactions are the same whatever the traffic and whichever direction asks first (in lockstep the
+    downlink runs ahead of the uplink). Attempts are timed with full packets both ways (T_ok = Tstby2a +
+    T_oa(31 bytes) + Tstby2a + T_oa(ACK payload)): an upper bound, which binds only when retries stretch a
+    transaction past the USB interval. Each direction carries at most one packet per successful transaction,
+    its packets in order (`plan`): an uplink packet arrives when it is on the air, s_k + F_k T_fail +
+    Tstby2a + T_oa(packet); a downlink packet (the ACK payload) reaches the host when its transaction ends.
+    """
+
+    def __init__(self, link: CrazyradioLink, rng: np.random.Generator):
+        self.link = link
+        self._uniform = _uniform_stream(rng).__next__
+        self._usb_s = link.usb_interval_s
+        full = link.data_bytes_per_packet
+        self._ok_s = link.attempt_ok_s(full)
+        self._failed_s = link.attempt_failed_s(full)
+        self._attempts = link.auto_retransmit_count + 1
+        self._host_retries = link.host_retries
+        p = link.packet_loss_probability
+        self._p, self._keep = p, 1.0 - p
+        self._log_p = math.log(p) if 0.0 < p < 1.0 else None
+        self._on_air_s = [link.settling_s + link.time_on_air_s(link.header_bytes_per_packet + b)
+                          for b in range(full + 1)]
+        self._starts: deque[float] = deque()
+        self._failures: deque[int] = deque()
+        self._first = 0  # index of _starts[0]
+        self._next_start_s = self._uniform() * self._usb_s
+        self._cursors: dict[str, int] = {}  # per direction: its next transaction
+        self.transactions_failed = 0
+
+    def _append(self) -> None:
+        p = self._p
+        if p == 0.0:
+            failures = 0
+        elif p == 1.0:
+            failures = self._attempts
+        else:
+            u = self._uniform()
+            failures = 0 if u < self._keep else min(self._attempts, max(1, int(math.log(1.0 - u) / self._log_p)))
+        start = self._next_start_s
+        self._starts.append(start)
+        self._failures.append(failures)
+        if failures == self._attempts:
+            self.transactions_failed += 1
+        air_s = failures * self._failed_s + (self._ok_s if failures < self._attempts else 0.0)
+        self._next_start_s = start + (air_s if air_s > self._usb_s else self._usb_s)
+
+    def _trim(self) -> None:
+        """Drop transactions every direction has passed; a direction that has not used the air yet (absent from
+        _cursors) keeps them all, so nothing a later push may need is ever gone."""
+        keep_from = min(min(self._cursors.values()), self._first + len(self._starts) - _TRIM_SLOTS)
+        while self._first < keep_from:
+            self._starts.popleft()
+            self._failures.popleft()
+            self._first += 1
+
+    def _slot(self, k: int) -> tuple[float, int]:
+        i = k - self._first
+        while i >= len(self._starts):
+            self._append()
+        return self._starts[i], self._failures[i]
+
+    def plan(self, direction: str, size_bytes: int, ready_s: float) -> tuple[float, float, int, bool, int]:
+        """Where a frame of size_bytes, ready at ready_s (s), goes: (start of its first transaction s, arrival of
+        its last packet s, ESB retransmissions, lost after host_retries failed transactions, the direction's next
+        transaction). Pure but for drawing transactions: `commit` takes the cursor once the frame is admitted."""
+        d = self.link.data_bytes_per_packet
+        full, last = divmod(size_bytes, d)
+        if last == 0 and full > 0:
+            full, last = full - 1, d
+        k = max(self._cursors.get(direction, 0), self._first)
+        start, failures = self._slot(k)
+        while start < ready_s - TIME_EPS_S:
+            k += 1
+            start, failures = self._slot(k)
+        first_start, arrival_s, retransmissions = start, start, 0
+        attempts, usb_s = self._attempts, self._usb_s
+        for packet in range(full + 1):
+            failed_in_a_row = 0
+            while True:
+                start, failures = self._slot(k)
+                k += 1
+                if failures < attempts:
+                    break
+                retransmissions += attempts
+                failed_in_a_row += 1
+                if failed_in_a_row >= self._host_retries:
+                    return first_start, start, retransmissions, True, k
+            retransmissions += failures
+            if direction == UPLINK:
+                arrival_s = start + failures * self._failed_s + self._on_air_s[last if packet == full else d]
+            else:
+                air_s = failures * self._failed_s + self._ok_s
+                arrival_s = start + (air_s if air_s > usb_s else usb_s)
+        return first_start, arrival_s, retransmissions, False, k
+
+    def commit(self, direction: str, next_transaction: int) -> None:
+        self._cursors[direction] = next_transaction
+        if len(self._starts) > 2 * _TRIM_SLOTS and len(self._cursors) == 2:
+            self._trim()
+
+
 class RadioChannel:
     """One direction of one vehicle's radio. See the module docstring for the model."""
 
     def __init__(self, profile: RadioProfile, rng: np.random.Generator, name: str = "",
-                 keep_ledger: bool = True):
+                 keep_ledger: bool = True, air: EsbAir | None = None, direction: str = UPLINK):
+        if direction not in (UPLINK, DOWNLINK):
+            raise ValueError(f"radio {name!r}: direction must be {UPLINK!r} or {DOWNLINK!r}, not {direction!r}")
         self.profile = profile
         self.name = name
         self.rng = rng
+        self.direction = direction
+        if profile.model == "crazyradio" and air is None:
+            air = EsbAir(profile.crazyradio, rng)
+        self.air = air if profile.model == "crazyradio" else None
         self.stats = RadioStats()
         self.ledger: list[FrameFate] = []
         self.keep_ledger = keep_ledger
@@ -186,8 +311,8 @@ class RadioChannel:
         self._duplicate_p = profile.duplicate_probability
         self._corrupts = profile.corrupt_frame_probability > 0.0 or profile.bit_error_rate > 0.0
         cr = profile.crazyradio
-        self._packet_bytes: int | None = None  # data bytes per Crazyradio packet; None: model "simple"
-        if cr is not None:
+        self._packet_bytes: int | None = None  # data bytes per ESB packet; None: model "simple" or "crazyradio"
+        if cr is not None and profile.model == "esb-duplex":
             sizes = range(cr.data_bytes_per_packet + 1)
             self._ok_s = [cr.attempt_ok_s(d) for d in sizes]
             self._failed_s = [cr.attempt_failed_s(d) for d in sizes]
@@ -293,17 +418,26 @@ class RadioChannel:
         """Draw the frame's fate (steps 1-5 of the module docstring) and schedule its copies; the
         FrameFate only when the ledger is kept."""
         size = len(frame)
-        free_s = self._channel_free_s
-        start_s = t_s if t_s >= free_s else free_s
+        air = self.air
+        if air is not None:
+            start_s, end_s, retransmissions, lost, next_transaction = air.plan(
+                self.direction, size, t_s + size * self._s_per_byte)
+            cause = DropCause.RETRIES if lost else None
+        else:
+            free_s = self._channel_free_s
+            start_s = t_s if t_s >= free_s else free_s
         if start_s > t_s and not self._admit(t_s, start_s):
             self.stats.dropped[DropCause.QUEUE] += 1
             self._lost = True
             return FrameFate(t_s, size, DropCause.QUEUE) if self.keep_ledger else None
-        if self._packet_bytes is None:
-            air_s, retransmissions, cause = 0.0, 0, None
+        if air is not None:
+            air.commit(self.direction, next_transaction)
         else:
-            air_s, retransmissions, cause = self._crazyradio_air(size)
-        end_s = self._channel_free_s = start_s + size * self._s_per_byte + air_s
+            if self._packet_bytes is None:
+                air_s, retransmissions, cause = 0.0, 0, None
+            else:
+                air_s, retransmissions, cause = self._crazyradio_air(size)
+            end_s = self._channel_free_s = start_s + size * self._s_per_byte + air_s
         uniform = self._uniform
         burst = self._burst
         if burst is not None:  # the chain steps for every frame on the air, whatever else happens

@@ -1,6 +1,6 @@
 """Planned maze flights through our link (issue 5): every course flight map and every lab maze, both modes.
 
-Lockstep, crazyradio radio profile, seeded. Targets: reach the goal without collision; ground-truth
+Lockstep, esb-duplex radio profile (MAVLink's default: its traffic does not fit one Crazyradio), seeded. Targets: reach the goal without collision; ground-truth
 clearance >= 0.25 m on the course maps (the course's robot radius) and >= 0.1 m on the lab mazes.
 The flights run concurrently (each is two processes waiting on each other most of the time).
 """
@@ -48,7 +48,7 @@ def tracked_clearance_bound(world: str, tracked: np.ndarray) -> float:
 def fly(world: str, mode: str, log: Path) -> tuple[int, dict | None, str]:
     args = COURSE_ARGS if world in COURSE_MAPS else LAB_ARGS
     run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(SHARED_WORLDS / f"{world}.json"), "--mode", mode,
-                          "--radio", "crazyradio", "--clock", "lockstep", "--seed", "7", "--json", "--log", str(log),
+                          "--radio", "esb-duplex", "--clock", "lockstep", "--seed", "7", "--json", "--log", str(log),
                           *args], capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
     summary = json.loads(run.stdout) if run.stdout.strip() else None
     return run.returncode, summary, run.stderr[-2000:]

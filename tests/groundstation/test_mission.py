@@ -17,10 +17,10 @@ DT = 0.002
 
 
 def view(t, pos, armed=True, vel=(0.0, 0.0, 0.0), mocap_age=0.0, healthy=True, downlink_age=0.0, crashed=False,
-         landing=False):
+         landing=False, heartbeat_age=0.0):
     return VehicleView(t_s=t, position_enu_m=np.array(pos, float), velocity_enu_mps=np.array(vel, float),
                        armed=armed, crashed=crashed, mocap_age_s=mocap_age, estimator_healthy=healthy,
-                       downlink_age_s=downlink_age, landing=landing)
+                       downlink_age_s=downlink_age, landing=landing, heartbeat_age_s=heartbeat_age)
 
 
 def airborne_mission(track=None):
@@ -113,6 +113,50 @@ def test_mocap_loss_holds_then_descends_at_the_thresholds():
     assert m.update(t, view(t, [0.1, 0, 0.5], mocap_age=t - lost_at, landing=True)).command is None
     t += DT
     assert m.update(t, view(t, [0.1, 0, 0], armed=False, mocap_age=t - lost_at)).phase == Phase.DISARM
+
+
+def test_mocap_that_always_arrives_too_old_descends_as_if_lost_since_the_hold():
+    """Fixes that keep coming but each 0.3 s old (a saturated radio: the filter runs late) never age past the
+    descent threshold; the hold must still end, when mocap has been older than the hold threshold for the
+    descent threshold in all: hold_after + (descend_after - hold_after) after the hold began."""
+    m, t = airborne_mission()
+    _, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    stale_age = 0.3
+    assert P.mocap_hold_after_s < stale_age < P.mocap_descend_after_s
+    hold_at = descend_at = None
+    start = t
+    while t < start + 5.0:
+        t += DT
+        step = m.update(t, view(t, [0, 0, 1], mocap_age=stale_age))
+        if step.phase == Phase.FAILSAFE_HOLD and hold_at is None:
+            hold_at = t
+        if step.phase == Phase.FAILSAFE_DESCENT:
+            descend_at = t
+            break
+    assert hold_at is not None and descend_at is not None
+    assert abs((descend_at - hold_at) - (P.mocap_descend_after_s - P.mocap_hold_after_s)) <= 2 * DT
+    assert m.result == "failsafe" and "stale" in m.failsafe_reason
+
+
+def test_no_heartbeat_for_five_periods_ends_the_flight_in_any_phase_even_disarming():
+    """MAVLink's disconnection (no HEARTBEAT for heartbeat_lost_after_s) while other frames still arrive: in
+    flight it is a failsafe; while disarming after the result it ends an otherwise endless wait."""
+    m, t = airborne_mission()
+    _, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    silent_from = t
+    while m.phase != Phase.DONE and t < silent_from + 10.0:
+        t += DT
+        m.update(t, view(t, [0, 0, 1], heartbeat_age=t - silent_from))
+    assert abs((t - silent_from) - P.heartbeat_lost_after_s) <= 2 * DT
+    assert m.result == "failsafe" and "heartbeat" in m.failsafe_reason
+    m, t = airborne_mission()
+    m._fail(t, "reached_goal", "")  # a decided result, then a disarm the vehicle never confirms
+    m._enter(Phase.DISARM, t)
+    silent_from = t
+    while m.phase != Phase.DONE and t < silent_from + 10.0:
+        t += DT
+        assert m.update(t, view(t, [0, 0, 0], heartbeat_age=t - silent_from)).phase in (Phase.DISARM, Phase.DONE)
+    assert m.phase == Phase.DONE and m.result == "reached_goal" and "heartbeat" in m.landing.note
 
 
 def test_mocap_back_before_one_second_resumes_the_plan():

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import os
@@ -121,3 +122,19 @@ def test_the_emulator_speaks_mavlink_over_a_serial_line(tmp_path):
 ])
 def test_an_impossible_radio_link_is_one_line_and_a_non_zero_exit(command, named):
     assert named in one_line_error(cfstack(*command, timeout=60))
+
+
+@pytest.mark.parametrize("radio, link, warned", [
+    ("crazyradio", "mavlink", True),  # 500 Hz HIGHRES_IMU is 3 radio packets a frame: 1500/s against 1000 transactions/s
+    ("esb-duplex", "mavlink", False),  # each direction on its own air, no USB cadence
+    ("crazyradio", "crtp", False),  # CRTP's IMU log block is one packet at 100 Hz
+    (None, "mavlink", False),  # the default radio for MAVLink is esb-duplex
+])
+def test_fly_warns_before_flying_mavlink_on_one_crazyradio(capsys, radio, link, warned):
+    from groundstation import cli
+
+    args = argparse.Namespace(link=link, radio=radio, vehicle_model="cf21")
+    cli._warn_if_one_crazyradio_cannot_carry_mavlink(args)
+    err = capsys.readouterr().err
+    assert ("1500 radio packets/s down and it carries 1000" in err) is warned
+    assert err.count("\n") == (1 if warned else 0)

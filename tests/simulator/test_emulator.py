@@ -32,7 +32,7 @@ GROUND = Codec(GROUND_STATION_SYSTEM_ID, limits=ActuatorLimits.from_vehicle(VEHI
 
 
 def config(**changes) -> EmulatorConfig:
-    base = dict(vehicle=VEHICLE, mocap_room=load_mocap_room("vicon"), radio=load_radio_profile("crazyradio"),
+    base = dict(vehicle=VEHICLE, mocap_room=load_mocap_room("vicon"), radio=load_radio_profile("esb-duplex"),
                 world=None, seed=3)
     base.update(changes)
     return EmulatorConfig(**base)
@@ -186,7 +186,7 @@ def test_a_silent_ground_station_holds_the_clock_at_its_tick_within_the_lookahea
     assert [t.tick for t in ticks] == [0] and ticks[0].time_ns == 0
     assert published == [] and ticks[0].truth_published == 0
     cycle_s = 1.0 / load_firmware_params().commander_rate_hz
-    limit = math.ceil(load_radio_profile("crazyradio").min_latency_s / cycle_s) * cycle_s
+    limit = math.ceil(load_radio_profile("esb-duplex").min_latency_s / cycle_s) * cycle_s
     assert 0 < emulator.steps and (emulator.steps - 1) * emulator.dt_s < limit  # the last step started before it
     assert emulator.steps * emulator.dt_s == pytest.approx(limit)  # ... and the steps reached it
     assert any("to finish tick 0" in r.getMessage() for r in caplog.records)
@@ -197,7 +197,7 @@ def test_the_lookahead_horizon_is_the_first_firmware_cycle_after_the_minimum_lat
     """At 1 kHz every 500 Hz firmware cycle is a step start, so a frame delivered at L acts at the next
     cycle; at 300 Hz the cycles fall between steps, so only L itself is a safe bound."""
     emulator = Emulator(config(physics_rate_hz=rate_hz))
-    latency_s = load_radio_profile("crazyradio").min_latency_s
+    latency_s = load_radio_profile("esb-duplex").min_latency_s
     cycle_s = 1.0 / load_firmware_params().commander_rate_hz
     expected = math.ceil(latency_s / cycle_s) * cycle_s if rate_hz == 1000.0 else latency_s
     assert latency_s < expected or rate_hz == 300.0

@@ -19,7 +19,7 @@ from model.radio import GilbertElliott, load_radio_profile
 from simulator.radio import DropCause, RadioChannel
 
 SIGMAS = 4.0
-PROFILES = ("ideal", "crazyradio", "lab", "harsh")
+PROFILES = ("ideal", "crazyradio", "esb-duplex", "lab", "harsh")
 RADIO_DIR = Path(__file__).resolve().parents[2] / "model" / "params" / "radio"
 
 
@@ -328,7 +328,7 @@ def test_queue_holds_capacity_frames_behind_the_one_on_the_air():
     assert channel.radio_status(1.0)["tx_buffer_pct"] == 100
 
 
-# --- crazyradio ----------------------------------------------------------------------------------
+# --- esb-duplex (the Crazyradio's packets, each direction on its own air) ---------------------------------------------------------------------------------
 
 
 def crazyradio_expectations(profile, size: int) -> tuple[float, float, float, float]:
@@ -354,8 +354,8 @@ def crazyradio_expectations(profile, size: int) -> tuple[float, float, float, fl
     return lost, mean, fastest, fastest + arc * sum(failed)
 
 
-def test_crazyradio_loss_and_delay_grow_with_frame_size_as_the_formula_says():
-    profile = dataclasses.replace(load_radio_profile("crazyradio"), jitter_s=0.0)
+def test_esb_duplex_loss_and_delay_grow_with_frame_size_as_the_formula_says():
+    profile = dataclasses.replace(load_radio_profile("esb-duplex"), jitter_s=0.0)
     profile = dataclasses.replace(profile, crazyradio=dataclasses.replace(profile.crazyradio,
                                                                           packet_loss_probability=0.3))
     n = 10_000
@@ -375,8 +375,8 @@ def test_crazyradio_loss_and_delay_grow_with_frame_size_as_the_formula_says():
     assert measured[280][0] > measured[20][0] and measured[280][1] > measured[20][1]
 
 
-def test_crazyradio_profile_is_a_few_milliseconds_one_way():
-    profile = load_radio_profile("crazyradio")
+def test_esb_duplex_profile_is_a_few_milliseconds_one_way():
+    profile = load_radio_profile("esb-duplex")
     channel = RadioChannel(profile, np.random.default_rng(0))
     size = 40  # a typical MAVLink frame: two radio packets
     run(channel, 10_000, 0.01, size=size)
@@ -511,6 +511,11 @@ def write_variant(tmp_path, base: str, old: str, new: str) -> Path:
     ("lab", 'model = "simple"', 'model = "wifi"', "model"),
     ("lab", 'jitter = "uniform"', 'jitter = "normal"', "latency.normal_clip_sigmas: missing"),
     ("crazyradio", 'model = "crazyradio"', 'model = "simple"', "crazyradio: given"),
+    ("crazyradio", "usb_interval_s = 0.001", "", "crazyradio.usb_interval_s: missing"),
+    ("crazyradio", "host_retries = 100", "host_retries = 0", "crazyradio.host_retries"),
+    ("esb-duplex", 'model = "esb-duplex"', 'model = "crazyradio"', "crazyradio.usb_interval_s: missing"),
+    ("esb-duplex", "packet_loss_probability = 0.02", "packet_loss_probability = 0.02\nhost_retries = 5",
+     "crazyradio.host_retries: unknown field"),
     ("crazyradio", "packet_loss_probability = 0.02", "packet_loss_probability = -0.1",
      "crazyradio.packet_loss_probability"),
     ("harsh", "p_bad_to_good = 0.25", "p_bad_to_good = 2", "burst.p_bad_to_good"),
@@ -525,7 +530,7 @@ def test_bad_profile_files_give_one_line_errors_naming_file_and_field(tmp_path, 
 
 
 def test_unknown_profile_name_lists_the_built_in_ones():
-    with pytest.raises(ConfigError, match="crazyradio, harsh, ideal, lab"):
+    with pytest.raises(ConfigError, match="crazyradio, esb-duplex, harsh, ideal, lab"):
         load_radio_profile("carrier-pigeon")
 
 
