@@ -33,6 +33,8 @@ from link.messages import (
     Heartbeat,
     ImuSample,
     MocapPose,
+    MotorOutputs,
+    MotorOutputsRequest,
     PositionTarget,
     RadioStatus,
     ThrustMoment,
@@ -96,6 +98,12 @@ class FlightLoop:
         # Displays (live view, GCS forwarding): each has period_s and observe(TickFrame), and is shown a
         # frame at most every period_s of flight time; they read the flight and change nothing in it.
         self.observers = [[observer, 0.0] for observer in observers]
+        # A display that shows the motors (the live view) asks the vehicle for them (MotorOutputsRequest,
+        # MAVLink only: CRTP's log blocks are fixed at connect), again each retry period until they come.
+        self._motor_request = max(((o.motor_outputs_hz, o.motor_request_retry_s) for o in observers
+                                   if getattr(o, "motor_outputs_hz", 0.0) > 0.0), default=None)
+        self._next_motor_request_s = 0.0
+        self.motor_duty: tuple[float, float, float, float] | None = None
         self.extpose = extpose  # forward each mocap pose to the vehicle, as a mocap lab streams extpose
         self.clock = clock
         self.estimator = estimator
@@ -138,6 +146,8 @@ class FlightLoop:
                 self.health.last_status_s = now_s
             elif isinstance(msg, RadioStatus):
                 self.health.last_radio = msg
+            elif isinstance(msg, MotorOutputs):
+                self.motor_duty = msg.duty
         for rx in inbox.mocap:
             if isinstance(rx.message, MocapPose):
                 pose = rx.message
@@ -218,6 +228,11 @@ class FlightLoop:
             # ask more often until the first reply: with compensation on, the mission waits for it
             period = self.p.timesync_period_s if self.health.rtt_s else self.p.timesync_period_s / 5
             self.next_timesync_s = now_s + period
+        request = self._motor_request
+        if (request is not None and self.motor_duty is None and now_s >= self._next_motor_request_s
+                and self.health.last_heartbeat is not None and not getattr(self.link, "speaks_crtp", False)):
+            self.link.send(MotorOutputsRequest(request[0]))
+            self._next_motor_request_s = now_s + request[1]
 
     def uplink_latency_s(self) -> float | None:
         """One-way uplink latency: half the median of the recent TIMESYNC round trips (None before any)."""
@@ -388,7 +403,8 @@ class FlightLoop:
             est_healthy=None if est is None else bool(est.healthy),
             armed=None if heartbeat is None else bool(heartbeat.armed),
             battery_remaining_pct=None if status is None else status.remaining_pct,
-            est_rate_flu_radps=None if est is None else tuple(est.rate_flu_radps.tolist()))
+            est_rate_flu_radps=None if est is None else tuple(est.rate_flu_radps.tolist()),
+            motor_duty=self.motor_duty)
         for entry in due:
             entry[0].observe(frame)
             entry[1] = now + entry[0].period_s

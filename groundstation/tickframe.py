@@ -40,6 +40,7 @@ class TickFrame:
     armed: bool | None = None  # live only
     battery_remaining_pct: int | None = None  # live only
     est_rate_flu_radps: Vec3 | None = None  # live only
+    motor_duty: tuple[float, float, float, float] | None = None  # live only: PWM duty 0..1, m1..m4 (on request)
 
 
 def frames_from_log(log) -> Iterator[TickFrame]:

@@ -115,6 +115,23 @@ class VehicleCommand:
 
 
 @dataclass(frozen=True)
+class MotorOutputs:
+    """The four motors' drive as the vehicle sets it: PWM duty 0..1 each, motors m1..m4 in the firmware's order
+    (wire: SERVO_OUTPUT_RAW, sent only on request). `time_s` is the vehicle's time."""
+
+    time_s: float
+    duty: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class MotorOutputsRequest:
+    """Ask the vehicle for MotorOutputs at rate_hz; 0 stops them (wire: COMMAND_LONG
+    MAV_CMD_SET_MESSAGE_INTERVAL for SERVO_OUTPUT_RAW)."""
+
+    rate_hz: float
+
+
+@dataclass(frozen=True)
 class TimeSync:
     """TIMESYNC request (`remote_ns == 0`) or reply. Nanoseconds, as MAVLink defines it."""
 
@@ -218,6 +235,8 @@ Message = (
     | ExternalPose
     | Heartbeat
     | VehicleCommand
+    | MotorOutputs
+    | MotorOutputsRequest
     | TimeSync
     | RadioStatus
     | BatteryStatus

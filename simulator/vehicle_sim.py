@@ -5,7 +5,8 @@ Heartbeats) delivered by the radio at a sim time (`handle_uplink`), and `step()`
 step of 1 / physics_rate_hz each).
 Gives out: `pop_outputs()` -> Output(release_time_s, channel, message), in release order, holding each
 until the vehicle's clock reaches its release time:
-  "downlink": ImuSample (imu rate), Heartbeat and BatteryStatus (telemetry rates), TimeSync replies;
+  "downlink": ImuSample (imu rate), Heartbeat and BatteryStatus (telemetry rates), TimeSync replies,
+              MotorOutputs at the rate a MotorOutputsRequest asked (faithful firmware; none unless asked);
   "mocap":    MocapPose (mocap rate; time_s = sample time, released latency_s later; dropped frames
               are simply absent);
   "truth":    TruthState (telemetry.truth_rate_hz; simulation only);
@@ -37,7 +38,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from link.messages import Message, TimeSync, TruthState
+from link.messages import Message, MotorOutputs, MotorOutputsRequest, TimeSync, TruthState
 from model.errors import UserError, WorldError
 from model.frames import rotate
 from model.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
@@ -123,6 +124,7 @@ class SimVehicle:
         self._truth = _Schedule(params.truth_rate_hz)
         self._heartbeat = _Schedule(params.heartbeat_rate_hz)
         self._battery = _Schedule(params.battery_rate_hz)
+        self._motor_outputs: _Schedule | None = None  # MotorOutputs only on request (MotorOutputsRequest)
         self.crtp = None  # simulator.crtp_service.CrtpService, when the fleet serves CRTP
         self._uplinks: list[tuple[float, int, Message]] = []
         self._uplink_seq = 0
@@ -279,6 +281,11 @@ class SimVehicle:
         if type(message) is CrtpDatagram:
             self._out.extend(Output(cycle_s, "crtp", reply) for reply in self.crtp.handle(message.data, cycle_s))
             return
+        if isinstance(message, MotorOutputsRequest):
+            self.firmware.count_uplink(cycle_s)
+            # SET_MESSAGE_INTERVAL: from this cycle on, MotorOutputs at the rate asked (0 stops them)
+            self._motor_outputs = _Schedule(message.rate_hz) if message.rate_hz > 0.0 else None
+            return
         if isinstance(message, TimeSync):
             self.firmware.count_uplink(cycle_s)  # every uplink message counts, TIMESYNC too
             if message.remote_ns == 0:  # a request; tc1 = 0 would read as another request, so >= 1 ns
@@ -301,6 +308,12 @@ class SimVehicle:
         if t + _EPS_S >= self._battery.next_s:
             self._battery.advance(t)
             self._out.append(Output(t, "downlink", self.firmware.battery_status()))
+        motors = self._motor_outputs
+        if motors is not None and t + _EPS_S >= motors.next_s:
+            motors.advance(t)
+            duty = getattr(self.firmware, "motor_duty", None)  # the faithful firmware's PWM; the ideal has none
+            if duty is not None:
+                self._out.append(Output(t, "downlink", MotorOutputs(t, duty)))
 
     def _sample_imu(self, t: float) -> None:
         self._imu.advance(t)

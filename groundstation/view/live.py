@@ -27,12 +27,15 @@ class ViewSettings:
     period_s: float
     trajectory_samples: int
     batch_frames: int
+    motor_outputs_hz: float
+    motor_request_retry_s: float
 
 
 def load_view_settings(name_or_path: str = "view") -> ViewSettings:
     p = Params.load(resolve(name_or_path, "groundstation", "params", "view settings"))
     return ViewSettings(p.number("period_s", 1e-3, 1.0), p.integer("trajectory_samples", 2),
-                        p.integer("batch_frames", 1))
+                        p.integer("batch_frames", 1), p.number("motor_outputs_hz", 0.0),
+                        p.number("motor_request_retry_s", 1e-3))
 
 
 def open_recording(save_path: str | Path | None, name: str) -> rr.RecordingStream:
@@ -58,6 +61,9 @@ class LiveView:
     def __init__(self, recording: rr.RecordingStream, settings: ViewSettings, world=None, plan: dict | None = None,
                  track=None):
         self.period_s = settings.period_s
+        # the flight loop asks the vehicle for its motors' PWM at this rate (MAVLink; 0: not at all)
+        self.motor_outputs_hz = settings.motor_outputs_hz
+        self.motor_request_retry_s = settings.motor_request_retry_s
         self.rec = recording
         self.view = FlightView(recording, settings.batch_frames)
         self.view.world(world)

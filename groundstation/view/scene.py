@@ -35,7 +35,8 @@ DELIVERY_WINDOW_S = 1.0  # window of the downlink delivery rate
 TRAIL_EVERY = 5  # frames between points of the flown-path strips (keeps the per-frame cost flat)
 BLOCK_RGB = (150, 150, 160)
 SERIES_NAMES = {"plots/moment_nm": ["x (roll)", "y (pitch)", "z (yaw)"],  # body FLU axes
-                "plots/attitude_cmd_deg": ["roll", "pitch", "yaw"]}  # ZYX Euler angles of the commanded attitude, ENU
+                "plots/attitude_cmd_deg": ["roll", "pitch", "yaw"],  # ZYX Euler angles of the commanded attitude, ENU
+                "plots/motor_pwm_pct": ["m1", "m2", "m3", "m4"]}  # PWM duty, the firmware's motor order
 
 
 class FlightView:
@@ -49,6 +50,7 @@ class FlightView:
         self._phase: str | None = None
         self._counts: deque[tuple[float, int, int]] = deque()  # (t, received, lost) over DELIVERY_WINDOW_S
         self._last_received: tuple[float, int] | None = None  # (time, count) when the count last grew
+        self._last_motor_duty: tuple | None = None  # the motor report last drawn (reports come slower than frames)
         self._trails: dict[str, list] = {"truth": [], "estimate": []}
         self._frames = 0
         self._pending: dict[str, tuple[type, list[float], dict[str, list]]] = {}
@@ -159,6 +161,9 @@ class FlightView:
             self._scalar("plots/attitude_cmd_deg", t, [math.degrees(a) for a in euler_zyx_of(f.cmd_attitude_wxyz)])
         if f.battery_v is not None:
             self._scalar("plots/battery_v", t, f.battery_v)
+        if f.motor_duty is not None and f.motor_duty is not self._last_motor_duty:  # each report once (10 Hz)
+            self._last_motor_duty = f.motor_duty
+            self._scalar("plots/motor_pwm_pct", t, [100.0 * d for d in f.motor_duty])
 
     def _link(self, f: TickFrame) -> None:
         t = f.t_s

@@ -37,6 +37,11 @@ Mapping (message -> MAVLink message: fields):
                       REBOOT = MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN param1 1 (reboot the autopilot).
                       The issue time rides in param3 (unused by both commands) as float32 seconds:
                       resolution 2^-24 relative (< 1 ms for the first 4.5 h).
+    MotorOutputs   -> SERVO_OUTPUT_RAW (port 0): servo1..4_raw = 1000 + 1000 duty us, the ESC pulse range
+                      (PX4's PWM_MAIN_MIN/MAX defaults) for the Crazyflie's 16-bit PWM duty;
+                      time_usec uint32 (wraps after 71.6 min).
+    MotorOutputsRequest -> COMMAND_LONG MAV_CMD_SET_MESSAGE_INTERVAL: param1 = SERVO_OUTPUT_RAW's id,
+                      param2 = interval us (-1: stop). Other message ids are not ours to answer.
     TimeSync       -> TIMESYNC: tc1 = remote_ns, ts1 = origin_ns.
     RadioStatus    -> RADIO_STATUS: field for field.
     BatteryStatus  -> SYS_STATUS: voltage_battery mV (NaN <-> UINT16_MAX "not sent"), battery_remaining
@@ -92,6 +97,8 @@ from link.messages import (
     ImuSample,
     Message,
     MocapPose,
+    MotorOutputs,
+    MotorOutputsRequest,
     PositionTarget,
     RadioStatus,
     ThrustMoment,
@@ -228,6 +235,9 @@ W_RADIO = _Wire.of(mav.MAVLink_radio_status_message)
 W_SYS_STATUS = _Wire.of(mav.MAVLink_sys_status_message)
 W_ODOMETRY = _Wire.of(mav.MAVLink_odometry_message)
 W_DEBUG_ARRAY = _Wire.of(mav.MAVLink_debug_float_array_message)
+W_SERVO = _Wire.of(mav.MAVLink_servo_output_raw_message)
+SERVO_PULSE_MIN_US, SERVO_PULSE_SPAN_US = 1000.0, 1000.0  # duty 0..1 <-> 1000..2000 us (PX4 PWM_MAIN_MIN/MAX)
+INTERVAL_STOP_US = -1.0  # MAV_CMD_SET_MESSAGE_INTERVAL param2: -1 disables the message
 
 # CRC_EXTRA of every message of the common dialect: frames of messages we do not decode can still be
 # verified (and skipped whole) instead of being mistaken for garbage.
@@ -278,6 +288,7 @@ _PACK_RADIO = W_RADIO.unpacker.pack
 _PACK_SYS_STATUS = W_SYS_STATUS.unpacker.pack
 _PACK_ODOMETRY = W_ODOMETRY.unpacker.pack
 _PACK_DEBUG_ARRAY = W_DEBUG_ARRAY.unpacker.pack
+_PACK_SERVO = W_SERVO.unpacker.pack
 
 
 def _enc_thrust_moment(m: ThrustMoment, limits: ActuatorLimits, target: int) -> bytes:
@@ -352,6 +363,17 @@ def _enc_command(m: VehicleCommand, limits, target: int) -> bytes:
     return _PACK_COMMAND(*params, command, target, 0, 0)
 
 
+def _enc_motor_outputs(m: MotorOutputs, limits, target: int) -> bytes:
+    pulses = [int(round(SERVO_PULSE_MIN_US + SERVO_PULSE_SPAN_US * d)) for d in m.duty]
+    return _PACK_SERVO(_usec(m.time_s) & 0xFFFFFFFF, *pulses, 0, 0, 0, 0, 0, *(0,) * 8)
+
+
+def _enc_motor_request(m: MotorOutputsRequest, limits, target: int) -> bytes:
+    interval_us = 1e6 / m.rate_hz if m.rate_hz > 0.0 else INTERVAL_STOP_US
+    return _PACK_COMMAND(float(W_SERVO.msgid), interval_us, 0.0, 0.0, 0.0, 0.0, 0.0,
+                         mav.MAV_CMD_SET_MESSAGE_INTERVAL, target, 0, 0)
+
+
 def _enc_timesync(m: TimeSync, limits, target: int) -> bytes:
     return _PACK_TIMESYNC(m.remote_ns, m.origin_ns)
 
@@ -410,6 +432,8 @@ _ENCODER_WIRES: dict[type, tuple[_Wire, Callable]] = {
     ExternalPose: (W_MOCAP, _enc_external_pose),
     Heartbeat: (W_HEARTBEAT, _enc_heartbeat),
     VehicleCommand: (W_COMMAND, _enc_command),
+    MotorOutputs: (W_SERVO, _enc_motor_outputs),
+    MotorOutputsRequest: (W_COMMAND, _enc_motor_request),
     TimeSync: (W_TIMESYNC, _enc_timesync),
     RadioStatus: (W_RADIO, _enc_radio),
     BatteryStatus: (W_SYS_STATUS, _enc_battery),
@@ -500,9 +524,17 @@ def _dec_command(v, system_id: int):
         kind = CommandKind.ARM if v[0] == 1.0 else CommandKind.DISARM
     elif command == mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN and v[0] == 1.0:
         kind = CommandKind.REBOOT
+    elif command == mav.MAV_CMD_SET_MESSAGE_INTERVAL and v[0] == W_SERVO.msgid and (v[1] > 0.0 or v[1] == -1.0):
+        return MotorOutputsRequest(1e6 / v[1] if v[1] > 0.0 else 0.0), v[8]
     else:
         return None
     return VehicleCommand(v[2], kind), v[8]
+
+
+def _dec_motor_outputs(v, system_id: int):
+    if v[9] != 0:  # port: only the first eight outputs, where the motors are
+        return None
+    return MotorOutputs(v[0] / 1e6, tuple((pulse - SERVO_PULSE_MIN_US) / SERVO_PULSE_SPAN_US for pulse in v[1:5])), 0
 
 
 _TOUCHED = frozenset(int(t) for t in Touched)
@@ -833,6 +865,7 @@ def _parser_table(limits: ActuatorLimits | None) -> dict[int, tuple]:
         W_DEBUG_ARRAY: _dec_crash,
         W_MOCAP: _dec_mocap,
         W_POSITION: _dec_position_target,
+        W_SERVO: _dec_motor_outputs,
     }
     if limits is not None:
         decoders[W_ACTUATOR] = _thrust_moment_decoder(limits)

@@ -656,6 +656,12 @@ class CrazyflieFirmware(Firmware):
     def state_of_charge(self) -> float:
         return self.battery.charge_left
 
+    @property
+    def motor_duty(self) -> tuple[float, float, float, float]:
+        """Each motor's PWM duty 0..1 (motor.m1..m4 / pwm_max), as the last cycle set it."""
+        pwm_max = self.cf.curve.pwm_max
+        return tuple(p / pwm_max for p in self.motor_pwm)
+
     def battery_status(self) -> BatteryStatus:
         return BatteryStatus(voltage_v=self.battery.voltage_v, remaining_pct=int(round(100.0 * self.state_of_charge)),
                              rejected_commands=self.rejected_commands, uplink_received=self.uplink_received)

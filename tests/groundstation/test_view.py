@@ -117,3 +117,20 @@ def test_view_of_a_missing_folder_is_one_line(tmp_path):
     result = cfstack("view", str(tmp_path / "nowhere"), "--save", str(tmp_path / "x.rrd"))
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "nowhere" in result.stderr
+
+
+def test_the_live_view_asks_the_vehicle_for_its_motors_and_draws_their_pwm(flown):
+    """The live view requests SERVO_OUTPUT_RAW at view.toml's rate (10 Hz); each report is drawn once, motors m1..m4
+    as PWM duty %: 0 before the vehicle arms, every motor driven and none saturated while it tracks. The log does
+    not keep the motors, so a replay has none."""
+    _, live, replay, log = flown
+    motors = live["plots/motor_pwm_pct"]
+    t = seconds(motors)
+    duty = np.array(motors["Scalars:scalars"])
+    assert duty.shape == (len(t), 4)
+    assert np.median(np.diff(t)) == pytest.approx(0.1, abs=0.021)  # 10 Hz reports on the 50 Hz frame grid
+    phase = log.phase[np.searchsorted(log.t_s, t - 1e-9)]
+    assert np.all(duty[phase == "connect"] == 0.0)
+    tracking = duty[phase == "track"]
+    assert len(tracking) > 10 and np.all((tracking > 0.0) & (tracking < 100.0))
+    assert "sim_time" not in replay.get("plots/motor_pwm_pct", {})  # its line names only, no values

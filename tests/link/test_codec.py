@@ -29,6 +29,8 @@ from link.mavlink.codec import (
 )
 from link.mavlink.signing import Signing
 from link.messages import (
+    MotorOutputs,
+    MotorOutputsRequest,
     AttitudeTarget,
     BatteryStatus,
     CommandKind,
@@ -274,6 +276,32 @@ def test_commands(kind, command, param1):
     assert msg.param3 == 12.5  # issue time in the unused param3
     decoded = roundtrip(cmd, Codec(255), target_system=3)
     assert decoded.message == cmd and decoded.target_system == 3
+
+
+def test_motor_outputs_are_servo_output_raw_pulses_of_one_to_two_milliseconds():
+    """Duty 0..1 is the ESC pulse range 1000..2000 us (MAVLink's servoN_raw unit), port 0, motors on 1..4."""
+    outputs = MotorOutputs(2.5, (0.0, 0.25, 0.5, 1.0))
+    msg = pymav_decode(Codec(1).encode(outputs))
+    assert msg.get_type() == "SERVO_OUTPUT_RAW" and msg.port == 0 and msg.time_usec == 2_500_000
+    assert (msg.servo1_raw, msg.servo2_raw, msg.servo3_raw, msg.servo4_raw, msg.servo5_raw) == (1000, 1250, 1500, 2000, 0)
+    assert roundtrip(outputs).message == outputs
+    m = mav.MAVLink(None, 1, 1)
+    other_port = m.servo_output_raw_encode(0, 1, 1500, 1500, 1500, 1500, 0, 0, 0, 0).pack(m)
+    assert FrameParser().feed(other_port) == []  # outputs 9..16 are not the motors
+
+
+@pytest.mark.parametrize("rate_hz, interval_us", [(10.0, 100_000.0), (0.0, -1.0)])
+def test_motor_outputs_request_is_set_message_interval_for_servo_output_raw(rate_hz, interval_us):
+    request = MotorOutputsRequest(rate_hz)
+    msg = pymav_decode(Codec(255).encode(request, target_system=3))
+    assert (msg.command, msg.param1, msg.param2, msg.target_system) == (
+        mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, interval_us, 3)
+    decoded = roundtrip(request, Codec(255), target_system=3)
+    assert decoded.message == request and decoded.target_system == 3
+    m = mav.MAVLink(None, 255, 1)
+    other = m.command_long_encode(3, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                  mav.MAVLINK_MSG_ID_ATTITUDE, 1e5, 0, 0, 0, 0, 0).pack(m)
+    assert FrameParser().feed(other) == []  # another message's interval: not ours to answer
 
 
 def test_other_commands_are_counted_not_delivered():

@@ -16,6 +16,8 @@ from link.messages import (
     Heartbeat,
     ImuSample,
     MocapPose,
+    MotorOutputs,
+    MotorOutputsRequest,
     ThrustMoment,
     TimeSync,
     TruthState,
@@ -193,3 +195,32 @@ def test_bad_firmware_files_name_the_file_and_field(tmp_path, old, new, field):
     with pytest.raises(ConfigError) as err:
         SimVehicle(CF, np.random.default_rng(0), firmware_params=path)
     assert str(err.value).startswith(str(path)) and field in str(err.value)
+
+
+def test_motor_outputs_come_only_on_request_at_its_rate_as_the_firmwares_pwm_duty():
+    """MAV_CMD_SET_MESSAGE_INTERVAL semantics: nothing before the request; then one MotorOutputs per 1 / rate s of
+    vehicle time, each the faithful firmware's motor.m1..m4 / pwm_max at that cycle; rate 0 stops them."""
+    cf21 = load_vehicle("cf21")
+    sim = SimVehicle(cf21, np.random.default_rng(2), initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True,
+                     firmware="crazyflie")
+    hover = ThrustMoment(0.0, cf21.weight_n, (0.0, 0.0, 0.0))
+    sim.handle_uplink(hover, 0.0)
+    sim.run(0.2)
+    assert not [o for o in sim.pop_outputs() if isinstance(o.message, MotorOutputs)]
+    sim.handle_uplink(MotorOutputsRequest(10.0), sim.t_s)
+    reports = []
+    while sim.t_s < 1.2:
+        sim.handle_uplink(ThrustMoment(sim.t_s, cf21.weight_n, (0.0, 0.0, 0.0)), sim.t_s)
+        sim.step()
+        for out in sim.pop_outputs():
+            if isinstance(out.message, MotorOutputs):
+                reports.append(out.message)
+                pwm_max = sim.firmware.cf.curve.pwm_max
+                assert out.message.duty == tuple(p / pwm_max for p in sim.firmware.motor_pwm)  # this cycle's PWM
+    times = np.array([r.time_s for r in reports])
+    assert len(reports) == 10 and np.allclose(np.diff(times), 0.1)
+    assert all(0.0 < d < 1.0 for r in reports for d in r.duty)  # hovering: every motor driven, none saturated
+    sim.handle_uplink(MotorOutputsRequest(0.0), sim.t_s)
+    sim.run(0.5)
+    late = [o.message for o in sim.pop_outputs() if isinstance(o.message, MotorOutputs)]
+    assert all(m.time_s <= times[-1] + 0.1 + 1e-9 for m in late) and len(late) <= 1  # stopped at the next cycle
