@@ -148,6 +148,7 @@ class FlightLoop:
                 self.health.last_radio = msg
             elif isinstance(msg, MotorOutputs):
                 self.motor_duty = msg.duty
+                self.log.motors(now_s, msg.time_s, msg.duty)
         for rx in inbox.mocap:
             if isinstance(rx.message, MocapPose):
                 pose = rx.message

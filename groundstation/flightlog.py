@@ -1,4 +1,5 @@
-"""Flight logs: states.csv (one row per control tick), summary.json, plan.json.
+"""Flight logs: states.csv (one row per control tick), summary.json, plan.json, and motors.csv (the vehicle's
+motor reports, when a live view asked for them).
 
 Takes in: per-tick values (time, phase, truth, estimate, reference, command, link health) as floats.
 Gives out: files in the log folder, written as they go and flushed every row, so a killed ground station
@@ -23,6 +24,9 @@ COLUMNS = (
     "mocap_age_s,est_healthy,uplink_sent,downlink_received,downlink_lost,rtt_ms,tick_time_ms,est_time_s,"
     "truth_time_s,battery_v"
 ).split(",")
+
+MOTORS_FILE = "motors.csv"
+MOTOR_COLUMNS = ("t_s", "vehicle_time_s", "m1_duty", "m2_duty", "m3_duty", "m4_duty")  # duty: PWM 0..1
 
 _BLOCKS = {  # how many cells each group of values fills
     "truth": 10, "est": 10, "sigma": 9, "ref": 6, "cmd_moment": 4, "cmd_att": 4,
@@ -63,6 +67,7 @@ class FlightLog:
         self.folder.mkdir(parents=True, exist_ok=True)
         self._states = open(self.folder / "states.csv", "w", buffering=1, newline="")  # line buffered
         self._states.write(",".join(COLUMNS) + "\n")
+        self._motors = None  # motors.csv, opened at the first motor report
         self._flush()
 
     @property
@@ -91,14 +96,22 @@ class FlightLog:
                  _cell(battery_v))
         self._states.write(",".join(cells) + "\n")
 
+    def motors(self, t_s: float, vehicle_time_s: float, duty) -> None:
+        """One motor report (MotorOutputs) as it arrives at tick t_s: motors.csv, line-buffered like states.csv."""
+        if self._motors is None:
+            self._motors = open(self.folder / MOTORS_FILE, "w", buffering=1, newline="")
+            self._motors.write(",".join(MOTOR_COLUMNS) + "\n")
+        self._motors.write(",".join(NUMBER % v for v in (t_s, vehicle_time_s, *duty)) + "\n")
+
     def write_json(self, name: str, data: dict) -> None:
         tmp = self.folder / f".{name}.tmp"
         tmp.write_text(json.dumps(data, indent=2, allow_nan=False, default=_jsonable) + "\n")
         tmp.replace(self.folder / name)
 
     def close(self) -> None:
-        if not self._states.closed:
-            self._states.close()
+        for stream in (self._states, self._motors):
+            if stream is not None and not stream.closed:
+                stream.close()
 
     def __enter__(self) -> FlightLog:
         return self

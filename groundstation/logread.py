@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.flightlog import MOTOR_COLUMNS, MOTORS_FILE
 from model.errors import UserError
 
 STATES_FILE = "states.csv"
@@ -70,6 +71,7 @@ class FlightLog:
     summary: dict | None = None
     plan: Plan | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    motors: np.ndarray | None = None  # motors.csv, (K, 6): t_s, vehicle_time_s, m1..m4 duty; None without it
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -110,8 +112,32 @@ def read_log(folder: str | Path) -> FlightLog:
     summary_path, plan_path = folder / SUMMARY_FILE, folder / PLAN_FILE
     summary = read_summary(summary_path) if summary_path.exists() else None
     plan = read_plan(plan_path) if plan_path.exists() else None
+    motors_path = folder / MOTORS_FILE
+    motors = read_motors(motors_path) if motors_path.exists() else None
     return FlightLog(folder=folder, t_s=t_s, phase=phase, columns=columns, summary=summary, plan=plan,
-                     warnings=tuple(warnings))
+                     warnings=tuple(warnings), motors=motors)
+
+
+def read_motors(path: str | Path) -> np.ndarray:
+    """motors.csv -> (K, 6) floats in MOTOR_COLUMNS order; a malformed file is one line naming it."""
+    path = Path(path)
+    lines = _read_text(path).splitlines()
+    header = [h.strip() for h in lines[0].split(",")] if lines else []
+    if tuple(header) != MOTOR_COLUMNS:
+        raise UserError(f"{path}: header is not {','.join(MOTOR_COLUMNS)}")
+    body = [line for line in lines[1:] if line.strip()]
+    rows = []
+    for number, line in enumerate(body, start=2):
+        cells = line.split(",")
+        try:
+            if len(cells) != len(MOTOR_COLUMNS):
+                raise ValueError(f"{len(cells)} cells, expected {len(MOTOR_COLUMNS)}")
+            rows.append([float(cell) for cell in cells])
+        except ValueError as err:
+            if number == len(body) + 1:  # the last line of a killed flight may be cut short: dropped
+                break
+            raise UserError(f"{path}: line {number}: {err}") from None
+    return np.array(rows, dtype=float).reshape(-1, len(MOTOR_COLUMNS))
 
 
 def read_states(path: str | Path) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], list[str]]:

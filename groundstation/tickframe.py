@@ -4,7 +4,8 @@ Takes in: the values the flight loop writes to states.csv for a tick (or, in rep
 log), plus what a display wants beside them (the vehicle's armed flag and the estimate's body rates).
 Gives out: `TickFrame`, plain tuples in world ENU / body FLU / SI units, `None` where unknown; and
 `frames_from_log(log)`, the frames of a read flight log, so that a replay feeds a display exactly what
-the live flight fed it (the values a live frame has beyond the log, armed, battery charge and rates, are left unknown).
+the live flight fed it (the values a live frame has beyond the log, armed, battery charge and rates, are left unknown; the
+motor reports come from motors.csv when the flight kept one).
 """
 
 from __future__ import annotations
@@ -12,6 +13,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+
+import numpy as np
 
 from model.frames import Quat, Vec3
 
@@ -48,6 +51,7 @@ def frames_from_log(log) -> Iterator[TickFrame]:
     c = log.columns
     n = len(log)
     columns = {name: c[name].tolist() for name in c}
+    motors = _motor_duty_per_row(log)
     for i in range(n):
         yield TickFrame(
             t_s=float(log.t_s[i]), phase=str(log.phase[i]),
@@ -68,7 +72,18 @@ def frames_from_log(log) -> Iterator[TickFrame]:
             downlink_received=_count(columns, i, "downlink_received"),
             downlink_lost=_count(columns, i, "downlink_lost"),
             est_healthy=None if _num(columns, i, "est_healthy") is None else bool(columns["est_healthy"][i]),
+            motor_duty=motors[i],
         )
+
+
+def _motor_duty_per_row(log) -> list:
+    """Per states.csv row, the newest motor report at or before its time (one tuple object per report, as the
+    live flight loop holds it); None before the first, or without motors.csv."""
+    if getattr(log, "motors", None) is None or not len(log.motors):
+        return [None] * len(log)
+    reports = [tuple(float(d) for d in row[2:6]) for row in log.motors]
+    index = np.searchsorted(log.motors[:, 0], np.asarray(log.t_s) + 1e-9, side="right") - 1
+    return [reports[k] if k >= 0 else None for k in index.tolist()]
 
 
 def _num(columns: dict, i: int, name: str) -> float | None:

@@ -121,8 +121,8 @@ def test_view_of_a_missing_folder_is_one_line(tmp_path):
 
 def test_the_live_view_asks_the_vehicle_for_its_motors_and_draws_their_pwm(flown):
     """The live view requests SERVO_OUTPUT_RAW at view.toml's rate (10 Hz); each report is drawn once, motors m1..m4
-    as PWM duty %: 0 before the vehicle arms, every motor driven and none saturated while it tracks. The log does
-    not keep the motors, so a replay has none."""
+    as PWM duty %: 0 before the vehicle arms, every motor driven and none saturated while it tracks. The flight
+    keeps the reports in motors.csv, and the replay draws the same ones at the same times."""
     _, live, replay, log = flown
     motors = live["plots/motor_pwm_pct"]
     t = seconds(motors)
@@ -133,4 +133,22 @@ def test_the_live_view_asks_the_vehicle_for_its_motors_and_draws_their_pwm(flown
     assert np.all(duty[phase == "connect"] == 0.0)
     tracking = duty[phase == "track"]
     assert len(tracking) > 10 and np.all((tracking > 0.0) & (tracking < 100.0))
-    assert "sim_time" not in replay.get("plots/motor_pwm_pct", {})  # its line names only, no values
+    replayed = replay["plots/motor_pwm_pct"]
+    assert seconds(replayed) == pytest.approx(t, abs=1e-6)
+    assert np.array(replayed["Scalars:scalars"]) == pytest.approx(duty, abs=1e-6)
+
+
+def test_motors_file_cut_at_its_last_line_replays_and_a_bad_one_is_one_line(flown, tmp_path):
+    """A killed flight may leave motors.csv's last line cut short: dropped. A bad line before it: one line, exit 2."""
+    import shutil
+
+    folder = tmp_path / "flight"
+    shutil.copytree(flown[0] / "flight", folder)
+    motors = folder / "motors.csv"
+    lines = motors.read_text().splitlines()
+    motors.write_text("\n".join(lines) + "\n0.5,0.4")  # a row cut short
+    assert read_log(folder).motors.shape == (len(lines) - 1, 6)
+    motors.write_text("\n".join(lines[:3] + ["1.0,x,0,0,0,0"] + lines[3:]) + "\n")
+    result = cfstack("view", str(folder), "--save", str(tmp_path / "x.rrd"))
+    assert result.returncode == 2
+    assert result.stderr.strip().count("\n") == 0 and "motors.csv: line 4" in result.stderr  # header, two rows, then the bad one
