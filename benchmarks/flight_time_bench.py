@@ -1,7 +1,8 @@
 """Flight-time benchmark (issue 5): our link and emulator against the course's published best times.
 
 Prints two tables, measured in one run:
-1. Course flight maps, flown through the link with the esb-duplex profile (MAVLink's default; lockstep), minimum snap with
+1. Course flight maps, flown through the link with the esb-duplex profile (MAVLink's default; lockstep), minimum
+   snap with
    the planning_aggressive limits and the full geometric controller, planned at a margin of 0.32 m;
    flight time against the best published course results (the course's ideal simulator, no radio) and
    the course's own collision check (course_grade.no_collision: no truth point within its 0.25 m robot radius).

@@ -118,7 +118,8 @@ def floors() -> dict[tuple[str, str], float]:
 
 
 def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
-    print("\n1. Lockstep real-time factor over zenoh (esb-duplex, MAVLink's default radio, firmware crazyflie), against the floor")
+    print("\n1. Lockstep real-time factor over zenoh (esb-duplex, MAVLink's default radio, firmware crazyflie), "
+          "against the floor")
     print(f"   baseline = git {rev} (extracted, run from PYTHONPATH; its emulator child too), new = this tree;")
     print("   RTF = simulated s / wall s of the flight loop (first tick to last); /floor = RTF over the floor's RTF")
     print("   (same mode, same firmware), target >= "

@@ -85,22 +85,29 @@ def crtp_traffic(mode: str, command_hz: float):
     return uplink, downlink
 
 
-def simulate(profile: RadioProfile, uplink, downlink, seconds: float = SIMULATED_S, seed: int = 1) -> str:
-    """The same traffic through the emulator's half-duplex air (simulator.radio.EsbAir): each stream pushed at its
-    rate from a common 1 ms grid; what each direction delivered and its 99th-percentile delay."""
-    air = EsbAir(profile.crazyradio, np.random.default_rng(seed))
+def run_traffic(profile: RadioProfile, uplink, downlink, seconds: float = SIMULATED_S,
+                seed: int = 1) -> list[RadioChannel]:
+    """The traffic through the emulator's radio of this profile (with "crazyradio": one half-duplex air,
+    simulator.radio.EsbAir, shared by the two directions): each stream pushed at its rate from a common 1 ms grid.
+    Returns the (uplink, downlink) channels."""
+    air = EsbAir(profile.crazyradio, np.random.default_rng(seed)) if profile.model == "crazyradio" else None
     channels = [RadioChannel(profile, np.random.default_rng(seed + 1 + i), keep_ledger=False, air=air,
                              direction=direction) for i, direction in enumerate((UPLINK, DOWNLINK))]
     steps = round(seconds / PUSH_GRID_S)
-    for channel, traffic in zip(channels, (uplink, downlink)):
+    for channel, traffic in zip(channels, (uplink, downlink), strict=True):
         for step in range(steps):
             t = step * PUSH_GRID_S
             for hz, size in traffic:
                 if step % max(1, round(1.0 / (hz * PUSH_GRID_S))) == 0:
                     channel.push(bytes(size), t)
             channel.pop_due(t)
+    return channels
+
+
+def simulate(profile: RadioProfile, uplink, downlink) -> str:
+    """What each direction of run_traffic delivered and its 99th-percentile delay, as a line."""
     parts = [f"{name} {c.stats.delivered / c.stats.offered:5.1%} delivered, p99 {c.stats.latency_p99_s * 1e3:6.1f} ms"
-             for name, c in zip(("up", "down"), channels)]
+             for name, c in zip(("up", "down"), run_traffic(profile, uplink, downlink), strict=True)]
     return "    simulated air: " + "; ".join(parts)
 
 

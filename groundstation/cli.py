@@ -497,6 +497,7 @@ def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:
         return
     from link.mavlink.codec import ActuatorLimits, Codec
     from link.messages import ImuSample
+    from model.air_budget import packets
     from model.radio import load_radio_profile
 
     profile = load_radio_profile(args.radio)
@@ -506,7 +507,7 @@ def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:
     vehicle = load_vehicle(args.vehicle_model)
     frame = Codec(system_id=1, limits=ActuatorLimits.from_vehicle(vehicle)).encode(
         ImuSample(0.0, (0.0, 0.0, 9.8), (0.0, 0.0, 0.0)))
-    packets_per_s = vehicle.imu.rate_hz * -(-len(frame) // cr.data_bytes_per_packet)
+    packets_per_s = sum(rate for rate, _ in packets(cr, [(vehicle.imu.rate_hz, len(frame))]))
     transactions_per_s = 1.0 / cr.usb_interval_s
     if packets_per_s > transactions_per_s:
         print(f"cfstack fly: warning: radio {profile.name} is one Crazyradio: MAVLink's {vehicle.imu.rate_hz:g} Hz IMU "

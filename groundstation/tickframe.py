@@ -4,8 +4,8 @@ Takes in: the values the flight loop writes to states.csv for a tick (or, in rep
 log), plus what a display wants beside them (the vehicle's armed flag and the estimate's body rates).
 Gives out: `TickFrame`, plain tuples in world ENU / body FLU / SI units, `None` where unknown; and
 `frames_from_log(log)`, the frames of a read flight log, so that a replay feeds a display exactly what
-the live flight fed it (the values a live frame has beyond the log, armed, battery charge and rates, are left unknown; the
-motor reports come from motors.csv when the flight kept one).
+the live flight fed it (the values a live frame has beyond the log, armed, battery charge and rates, are left
+unknown; the motor reports come from motors.csv when the flight kept one).
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def frames_from_log(log) -> Iterator[TickFrame]:
 def _motor_duty_per_row(log) -> list:
     """Per states.csv row, the newest motor report at or before its time (one tuple object per report, as the
     live flight loop holds it); None before the first, or without motors.csv."""
-    if getattr(log, "motors", None) is None or not len(log.motors):
+    if log.motors is None or not len(log.motors):
         return [None] * len(log)
     reports = [tuple(float(d) for d in row[2:6]) for row in log.motors]
     index = np.searchsorted(log.motors[:, 0], np.asarray(log.t_s) + 1e-9, side="right") - 1

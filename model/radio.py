@@ -10,7 +10,8 @@ Models: "simple" (latency, loss, queue); "esb-duplex" (each direction on an Enha
 own: frames cut into nRF24 packets, each retried); "crazyradio" (one dongle: a half-duplex ESB link whose
 transactions, one per USB interval, carry at most one packet each way; simulator.radio.EsbAir).
 MAVLink flies on esb-duplex by default because its traffic does not fit one Crazyradio
-(benchmarks/radio_budget.py); CRTP, the Crazyflie's own protocol, on crazyradio. The channel that applies a profile in simulation time is
+(benchmarks/radio_budget.py); CRTP, the Crazyflie's own protocol, on crazyradio. The channel that applies a
+profile in simulation time is
 simulator.radio.RadioChannel; a ground station or a sweep reads the profile only to describe or vary it.
 """
 

@@ -114,7 +114,8 @@ class GroundFrameGate:
 
 
 def _radio_pair(profile: RadioProfile, keep_ledger: bool, prefix: str, suffix: str, up_seed: np.random.SeedSequence,
-                down_seed: np.random.SeedSequence, air_seed: np.random.SeedSequence) -> tuple[RadioChannel, RadioChannel]:
+                down_seed: np.random.SeedSequence,
+                air_seed: np.random.SeedSequence) -> tuple[RadioChannel, RadioChannel]:
     """(uplink, downlink) channels of one radio; with a "crazyradio" profile both on one shared EsbAir."""
     air = EsbAir(profile.crazyradio, np.random.default_rng(air_seed)) if profile.model == "crazyradio" else None
     up = RadioChannel(profile, np.random.default_rng(up_seed), name=f"{prefix}uplink {suffix}", keep_ledger=keep_ledger,

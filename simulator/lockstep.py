@@ -18,7 +18,8 @@ L = the smallest RadioChannel.min_latency_s of the vehicle's uplink radios, MAVL
 lower bound), and that a vehicle's firmware takes delivered
 messages only at its next 500 Hz cycle (SimVehicle.first_effect_s). So while it waits for the acks it
 may already run every physics step that STARTS before horizon_s = min over vehicles of the first
-firmware cycle at or after t_k + L (with esb-duplex's 0.84 ms or crazyradio's 0.17 ms and 2 ms cycles: one whole 500 Hz tick).
+firmware cycle at or after t_k + L (with esb-duplex's 0.84 ms or crazyradio's 0.17 ms and 2 ms cycles: one whole
+500 Hz tick).
 Frames those steps produce are kept in each vehicle's outbox,
 stamped with the step count at which a non-lookahead emulator would have published them, and are
 published with the first tick whose time reaches that stamp; tick k's view is therefore unchanged.

@@ -1,8 +1,8 @@
 """One emulated Crazyflie in-process: physics, onboard firmware and sensors on one simulation clock.
 
-Takes in: uplink messages (ThrustMoment, AttitudeTarget, VehicleCommand, TimeSync requests, ground-station
-Heartbeats) delivered by the radio at a sim time (`handle_uplink`), and `step()` calls (one physics
-step of 1 / physics_rate_hz each).
+Takes in: uplink messages (ThrustMoment, AttitudeTarget, VehicleCommand, MotorOutputsRequest, TimeSync
+requests, ground-station Heartbeats) delivered by the radio at a sim time (`handle_uplink`), and `step()`
+calls (one physics step of 1 / physics_rate_hz each).
 Gives out: `pop_outputs()` -> Output(release_time_s, channel, message), in release order, holding each
 until the vehicle's clock reaches its release time:
   "downlink": ImuSample (imu rate), Heartbeat and BatteryStatus (telemetry rates), TimeSync replies,

@@ -1,6 +1,7 @@
 """Whole flight sessions over zenoh against the emulator (lockstep, seeded): the ground station's job.
 
-Issue 4 targets checked here: hover at 1 m for 10 s with the default radio profile (esb-duplex for MAVLink), RMS position error
+Issue 4 targets checked here: hover at 1 m for 10 s with the default radio profile (esb-duplex for MAVLink), RMS
+position error
 <= 1 cm in both command modes; the --json contract; logs (states.csv, link.mavlink.tlog, summary.json) that are
 complete after a flight and readable after the ground station is killed; one-line errors for bad input.
 """

@@ -1,6 +1,7 @@
 """Planned maze flights through our link (issue 5): every course flight map and every lab maze, both modes.
 
-Lockstep, esb-duplex radio profile (MAVLink's default: its traffic does not fit one Crazyradio), seeded. Targets: reach the goal without collision; ground-truth
+Lockstep, esb-duplex radio profile (MAVLink's default: its traffic does not fit one Crazyradio), seeded.
+Targets: reach the goal without collision; ground-truth
 clearance >= 0.25 m on the course maps (the course's robot radius) and >= 0.1 m on the lab mazes.
 The flights run concurrently (each is two processes waiting on each other most of the time).
 """

@@ -125,7 +125,7 @@ def test_an_impossible_radio_link_is_one_line_and_a_non_zero_exit(command, named
 
 
 @pytest.mark.parametrize("radio, link, warned", [
-    ("crazyradio", "mavlink", True),  # 500 Hz HIGHRES_IMU is 3 radio packets a frame: 1500/s against 1000 transactions/s
+    ("crazyradio", "mavlink", True),  # 500 Hz HIGHRES_IMU, 3 radio packets a frame: 1500/s against 1000 transactions/s
     ("esb-duplex", "mavlink", False),  # each direction on its own air, no USB cadence
     ("crazyradio", "crtp", False),  # CRTP's IMU log block is one packet at 100 Hz
     (None, "mavlink", False),  # the default radio for MAVLink is esb-duplex

@@ -151,4 +151,5 @@ def test_motors_file_cut_at_its_last_line_replays_and_a_bad_one_is_one_line(flow
     motors.write_text("\n".join(lines[:3] + ["1.0,x,0,0,0,0"] + lines[3:]) + "\n")
     result = cfstack("view", str(folder), "--save", str(tmp_path / "x.rrd"))
     assert result.returncode == 2
-    assert result.stderr.strip().count("\n") == 0 and "motors.csv: line 4" in result.stderr  # header, two rows, then the bad one
+    # the file's line 4: the header, two rows, then the bad one
+    assert result.stderr.strip().count("\n") == 0 and "motors.csv: line 4" in result.stderr

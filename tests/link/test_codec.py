@@ -29,8 +29,6 @@ from link.mavlink.codec import (
 )
 from link.mavlink.signing import Signing
 from link.messages import (
-    MotorOutputs,
-    MotorOutputsRequest,
     AttitudeTarget,
     BatteryStatus,
     CommandKind,
@@ -38,6 +36,8 @@ from link.messages import (
     Heartbeat,
     ImuSample,
     MocapPose,
+    MotorOutputs,
+    MotorOutputsRequest,
     RadioStatus,
     ThrustMoment,
     TimeSync,
@@ -283,7 +283,8 @@ def test_motor_outputs_are_servo_output_raw_pulses_of_one_to_two_milliseconds():
     outputs = MotorOutputs(2.5, (0.0, 0.25, 0.5, 1.0))
     msg = pymav_decode(Codec(1).encode(outputs))
     assert msg.get_type() == "SERVO_OUTPUT_RAW" and msg.port == 0 and msg.time_usec == 2_500_000
-    assert (msg.servo1_raw, msg.servo2_raw, msg.servo3_raw, msg.servo4_raw, msg.servo5_raw) == (1000, 1250, 1500, 2000, 0)
+    pulses = (msg.servo1_raw, msg.servo2_raw, msg.servo3_raw, msg.servo4_raw, msg.servo5_raw)
+    assert pulses == (1000, 1250, 1500, 2000, 0)
     assert roundtrip(outputs).message == outputs
     m = mav.MAVLink(None, 1, 1)
     other_port = m.servo_output_raw_encode(0, 1, 1500, 1500, 1500, 1500, 0, 0, 0, 0).pack(m)

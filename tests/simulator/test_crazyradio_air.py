@@ -170,12 +170,13 @@ def test_the_result_does_not_depend_on_which_direction_asks_first():
     def deliveries(order: str):
         up, down, _ = pair(prof, seed=21)
         if order == "down first":
-            for t, s in zip(down_times, sizes):
+            for t, s in zip(down_times, sizes, strict=True):
                 down.push(bytes(int(s)), float(t))
-            for t, s in zip(up_times, sizes):
+            for t, s in zip(up_times, sizes, strict=True):
                 up.push(bytes(int(s)), float(t))
         else:
-            events = sorted([(t, 0, s) for t, s in zip(up_times, sizes)] + [(t, 1, s) for t, s in zip(down_times, sizes)])
+            events = sorted([(t, 0, s) for t, s in zip(up_times, sizes, strict=True)]
+                            + [(t, 1, s) for t, s in zip(down_times, sizes, strict=True)])
             for t, which, s in events:
                 (up if which == 0 else down).push(bytes(int(s)), float(t))
         return [f.delivery_s for f in up.ledger], [f.delivery_s for f in down.ledger]

@@ -328,7 +328,7 @@ def test_queue_holds_capacity_frames_behind_the_one_on_the_air():
     assert channel.radio_status(1.0)["tx_buffer_pct"] == 100
 
 
-# --- esb-duplex (the Crazyradio's packets, each direction on its own air) ---------------------------------------------------------------------------------
+# --- esb-duplex (the Crazyradio's packets, each direction on its own air) --------------------------------------
 
 
 def crazyradio_expectations(profile, size: int) -> tuple[float, float, float, float]:
