@@ -155,7 +155,7 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
 
 def report_zenoh(radio: str, seconds: float, repeats: int, seed: int) -> None:
     lookahead_s = load_radio_profile(radio).min_latency_s
-    horizon_s = Emulator(make_config(radio, 1, seed)).lookahead_horizon_s()  # from tick 0 at t = 0
+    horizon_s = Emulator(make_config(radio, 1, seed)).lockstep.lookahead_horizon_s()  # from tick 0 at t = 0
     print(f"over zenoh, lockstep, radio '{radio}' (uplink minimum latency {lookahead_s * 1e3:.3f} ms: lookahead to "
           f"the firmware cycle {horizon_s * 1e3:.3f} ms after a tick), "
           f"{seconds:g} s simulated per run, best of {repeats}; load average {os.getloadavg()[0]:.1f} "

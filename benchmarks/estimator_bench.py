@@ -60,10 +60,16 @@ BUILD = "est.build"  # estimate() right after a repeated (ignored) IMU sample: b
 COLUMNS = (*CALLS, "tick", BUILD)
 
 
+# the baseline's eskf.py and the modules it imports that have since moved (they come from the same commit)
+BASELINE_MODULES = {"eskf": "estimator/eskf.py", "rotation": "estimator/rotation.py",
+                    "link_rotation": "link/rotation.py", "config": "link/config.py", "errors": "link/errors.py",
+                    "vehicle": "link/vehicle.py"}
+
+
 def load_baseline(commit: str, workdir: Path) -> type | None:
     """ErrorStateKF of estimator/eskf.py at `commit`, or None (with the reason printed) without git."""
     try:
-        return baseline_modules(commit, {"eskf": "estimator/eskf.py"}, workdir)["eskf"].ErrorStateKF
+        return baseline_modules(commit, BASELINE_MODULES, workdir)["eskf"].ErrorStateKF
     except (OSError, subprocess.CalledProcessError) as err:
         print(f"baseline {commit[:9]} not readable with git ({err}): candidate only")
         return None

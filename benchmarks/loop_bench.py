@@ -49,6 +49,7 @@ from link.messages import ThrustMoment
 from link.transports.base import free_loopback_port
 from model.radio import DEFAULT_MAVLINK_RADIO
 from model.vehicle import load_vehicle
+from simulator.emulator import Emulator
 
 MAZE = "test_lab_1"
 FLOOR_RUNS = 3
@@ -100,21 +101,37 @@ def fly_timed(args: list[str], log: Path, tree: Path | None) -> tuple[dict, dict
     return plain, json.loads(out.read_text())
 
 
-def floors() -> dict[tuple[str, str], float]:
-    """The layout's floor per (mode, firmware): the emulator against a ground station that does no work."""
+def floors() -> tuple[dict[tuple[str, str], float], dict[tuple[str, str], float]]:
+    """The layout's floor per (mode, firmware): the emulator against a ground station that does no work;
+    and that responder's own critical path per tick (tick record taken -> ack sent, us; median of runs)."""
     print(f"   floor: the emulator against a zero-work ground station (emulator_bench responder), "
           f"median of {FLOOR_RUNS} runs of {FLOOR_SECONDS:g} s simulated; load average {os.getloadavg()[0]:.1f}")
-    out = {}
+    out, critical = {}, {}
     for firmware in FLOOR_FIRMWARES:
         for mode in TARGET_RTF:
             rate_hz = DEFAULT_RATE_HZ[mode]
             period_s = 1.0 / rate_hz
-            runs = [emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, FLOOR_SECONDS, period_s, True, 0, profile=False,
-                                             firmware=firmware)["rtf"] for _ in range(FLOOR_RUNS)]
+            flown = [emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, FLOOR_SECONDS, period_s, True, 0, profile=False,
+                                              firmware=firmware) for _ in range(FLOOR_RUNS)]
+            runs = [run["rtf"] for run in flown]
             out[mode, firmware] = statistics.median(runs)
+            critical[mode, firmware] = statistics.median(_responder_critical_us(run["responder"]) for run in flown)
             print(f"   {mode:9} at {rate_hz:3.0f} Hz, firmware {firmware:9}: floor {out[mode, firmware]:5.1f}x "
                   f"({period_s / out[mode, firmware] * 1e6:4.0f} us/tick; runs {', '.join(f'{x:.1f}x' for x in runs)})")
-    return out
+    return out, critical
+
+
+def _responder_critical_us(responder: dict) -> float:
+    """The zero-work responder's mean tick record -> ack time (its frames, one command, the ack), us."""
+    answered = max(1, responder["ticks"] - 1)  # it times every tick but the first (which also arms)
+    return (responder["frames_wait_s"] + responder["work_s"]) / answered * 1e6
+
+
+def overlapped_ticks(period_s: float) -> int:
+    """How many ticks one emulator round covers: 2 when the lookahead horizon reaches a whole tick past the
+    one just published (the emulator computes tick k+1 while the ground station computes tick k), else 1."""
+    horizon_s = Emulator(emulator_bench.make_config(DEFAULT_MAVLINK_RADIO, 1, 0)).lockstep.lookahead_horizon_s()
+    return 2 if horizon_s >= period_s - 1e-9 else 1
 
 
 def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
@@ -137,7 +154,7 @@ def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
                 log = tmp / f"{name.replace(' ', '_')}_{mode}_{label}"
                 results[name, mode, label] = fly_timed([*args, "--mode", mode], log, source)
                 print(f"   flew {name}, {mode}, {label}", file=sys.stderr, flush=True)  # progress
-    floor = floors()
+    floor, floor_critical = floors()
     print(f"\n{'flight':18} {'mode':9} {'RTF base':>8} {'RTF new':>8} {'new/base':>8} {'floor':>6} "
           f"{'base/floor':>10} {'new/floor':>9} {'result':>13} {'target':>7}")
     for name, _ in flights:
@@ -157,6 +174,34 @@ def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
             for part in (*PART_NAMES, "other", "loop"):
                 cells.append(f"{per_tick[0][part]:6.0f} -> {per_tick[1][part]:5.0f}")
             print(f"{name:18} {mode:9} " + " ".join(f"{c:>15}" for c in cells))
+    critical_path_table(flights, results, floor, floor_critical)
+
+
+def critical_path_table(flights, results, floor, floor_critical) -> None:
+    """What bounds each flight's speed: the ground station's critical path P (tick record taken -> ack sent).
+
+    The emulator may not step past the tick after next before a tick's ack (the lookahead's horizon), so
+    n ticks (overlapped_ticks) cost P + C of wall time, where C - the emulator's own step and the two
+    zenoh hops - is read off the floor: C = n x floor period - P_floor. Hence a flight at its floor's
+    share (P_floor + C) / (P + C), and 80 % needs P <= (P_floor + C) / 0.8 - C."""
+    print("\n   critical path per tick (tick record taken -> ack sent, mean us; the rest of a tick overlaps the "
+          "emulator):\n   n ticks cost P + C, C = n x floor period - P_floor (the emulator's step and two zenoh "
+          "hops); share of floor predicted (P_floor + C) / (P + C)")
+    print(f"{'flight':18} {'mode':9} {'n':>2} {'P base':>7} {'P new':>6} {'P floor':>7} {'C':>6} "
+          f"{'predicted':>9} {'measured':>8} {'P for 80%':>9}")
+    for name, _ in flights:
+        for mode in TARGET_RTF:
+            period_s = 1.0 / DEFAULT_RATE_HZ[mode]
+            n = overlapped_ticks(period_s)
+            p_floor = floor_critical[mode, "crazyflie"]
+            c = n * period_s / floor[mode, "crazyflie"] * 1e6 - p_floor
+            p = [results[name, mode, label][0]["timing"].get("ack_after_tick_us_mean")
+                 for label in ("baseline", "new")]
+            measured = results[name, mode, "new"][0]["timing"]["real_time_factor"] / floor[mode, "crazyflie"]
+            needed = (p_floor + c) / FLOOR_SHARE_TARGET - c
+            base = "-" if p[0] is None else f"{p[0]:.0f}"  # a revision before the measure: not reported
+            print(f"{name:18} {mode:9} {n:2d} {base:>7} {p[1]:6.0f} {p_floor:7.0f} {c:6.0f} "
+                  f"{(p_floor + c) / (p[1] + c):9.0%} {measured:8.0%} {needed:9.0f}")
 
 
 def _per_tick(parts: dict) -> dict[str, float]:

@@ -124,6 +124,12 @@ class LockstepClock:
         self.tick = -1
         self.t_s = 0.0
         self.ticks = 0
+        # The lockstep's critical path per tick: from the tick's record being taken to its ack being sent
+        # (the tick's frames decoded, estimator, mission, controller, commands sent). The emulator waits
+        # for the ack before it steps past the next tick, so this is what the ground station adds to
+        # each simulated tick (benchmarks/loop_bench.py); the rest of the tick overlaps the emulator.
+        self.ack_after_tick_s: list[float] = []
+        self._tick_taken_s = 0.0
 
     def start(self) -> None:
         self.transport.send(ClockAck(-1, self.link.uplink_sent, 0, period_ns=self.period_ns,
@@ -134,6 +140,7 @@ class LockstepClock:
 
     def wait(self) -> float:
         tick = self._next_tick()
+        self._tick_taken_s = time.perf_counter()
         self.t_s = tick.time_s  # frames of this tick are received at its time (their ages depend on it)
         radio = tick.crtp_published if self.link.speaks_crtp else tick.downlink_published
         target = (radio, tick.mocap_published, tick.truth_published)
@@ -186,6 +193,14 @@ class LockstepClock:
         wake_ns = max(round(next_wakeup_s * NS_PER_S), round(self.t_s * NS_PER_S) + 1)
         self.transport.send(ClockAck(self.tick, self.link.uplink_sent, wake_ns, period_ns=self.period_ns,
                                      crtp=self.link.speaks_crtp).pack())
+        self.ack_after_tick_s.append(time.perf_counter() - self._tick_taken_s)
+
+    def critical_path_summary(self) -> dict:
+        """The tick record -> ack times (see __init__), microseconds: median and mean."""
+        if not self.ack_after_tick_s:
+            return {}
+        us = np.array(self.ack_after_tick_s) * 1e6
+        return {"ack_after_tick_us_p50": float(np.median(us)), "ack_after_tick_us_mean": float(us.mean())}
 
     def done(self) -> None:
         self.timer.stop()

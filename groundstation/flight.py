@@ -171,7 +171,10 @@ class FlightLoop:
                 self.record.crash = rx.message
 
     def after_release(self, now_s: float, step, out) -> None:
-        """The tick's bookkeeping once its commands are sent: truth, the log row, the tlog records."""
+        """The tick's bookkeeping once its commands are sent: the command history of the latency
+        compensator (read from the next tick on), truth, the log row, the tlog records."""
+        if out is not None and self.compensator is not None:
+            self.compensator.record(now_s, out.thrust_n, out.moment_flu_nm, out.attitude_des_wxyz)
         self.absorb_truth()
         self.write_row(now_s, step, out)
         self.link.flush_logs()
@@ -205,7 +208,9 @@ class FlightLoop:
         downlink_age = now_s - (self.health.last_downlink_s or now_s)
         # "Unhealthy" for the mission means the filter itself is in trouble (its position uncertainty is
         # beyond its limit); a mocap blackout alone is handled by the mocap-age thresholds.
-        filter_ok = float(est.std_dev[POSITION].max()) <= self.estimator.params.max_position_sigma_m
+        sx, sy, sz = est.std_dev[POSITION].tolist()  # floats: numpy's max on 3 numbers costs ~6 us per tick
+        limit = self.estimator.params.max_position_sigma_m
+        filter_ok = sx <= limit and sy <= limit and sz <= limit  # a NaN sigma is not ok (as with max)
         return VehicleView(
             t_s=now_s, position_enu_m=np.asarray(est.position_enu_m, float),
             velocity_enu_mps=np.asarray(est.velocity_enu_mps, float), armed=hb.armed,
@@ -248,17 +253,16 @@ class FlightLoop:
                                           tuple(float(v) for v in ref.velocity_mps), float(ref.yaw_rad)))
             return None
         est = self.estimate
-        reference = step.reference
         latency = self.uplink_latency_s() if self.compensator is not None else None
         if latency is not None and step.phase in COMPENSATED_PHASES:
             state = self.compensator.predict(est, now_s, self.health.offset_s, latency)
-            reference = self.mission.reference_at(now_s + latency) or reference
+            # the tick's own reference (step.reference) is then read only by the log row, after the ack
+            reference = self.mission.reference_at(now_s + latency) or step.reference
         else:
             state = ControllerState(position_enu_m=est.position_enu_m, velocity_enu_mps=est.velocity_enu_mps,
                                     attitude_wxyz=est.attitude_wxyz, rate_flu_radps=est.rate_flu_radps)
+            reference = step.reference
         out = self.controller.update(state, reference, now_s)
-        if self.compensator is not None:
-            self.compensator.record(now_s, out.thrust_n, out.moment_flu_nm, out.attitude_des_wxyz)
         if self.mode == "moments":
             self.link.send(ThrustMoment(now_s, out.thrust_n, tuple(out.moment_flu_nm)))
         else:
@@ -326,7 +330,7 @@ class FlightLoop:
         out = None
         if step.command is not None:
             self.link.send(VehicleCommand(now, step.command))
-        if step.reference is not None and view is not None and step.phase != Phase.DONE:
+        if step.has_reference and view is not None and step.phase != Phase.DONE:
             out = self.control(now, step)
         # Everything the vehicle needs from this tick is sent: release the lockstep before the
         # bookkeeping, which changes nothing that is sent (the log is the same either way).

@@ -152,11 +152,51 @@ class LandingOutcome:
     note: str | None = None  # e.g. no clear spot within the search radius
 
 
-@dataclass
 class MissionStep:
-    phase: Phase
-    reference: FlatOutput | None  # None: send no setpoint this tick
-    command: CommandKind | None = None
+    """One tick's decision: the phase, the reference to fly (None: send no setpoint this tick) and a
+    vehicle command (None: none).
+
+    A reference on the phase's trajectory segment (`on_segment`) is sampled when first read, then kept:
+    with latency compensation the controller flies the segment at a later time (Mission.reference_at), so
+    this tick's own sample is read only by the log row, after the tick's commands are sent, off the
+    lockstep's critical path. The segment and its time are fixed at construction: the value is the same
+    whenever it is read."""
+
+    __slots__ = ("phase", "command", "_reference", "_segment", "_segment_t_s")
+
+    def __init__(self, phase: Phase, reference: FlatOutput | None, command: CommandKind | None = None):
+        self.phase = phase
+        self.command = command
+        self._reference = reference
+        self._segment: Trajectory | None = None
+        self._segment_t_s = 0.0
+
+    @classmethod
+    def on_segment(cls, phase: Phase, segment: Trajectory, t_s: float,
+                   command: CommandKind | None = None) -> MissionStep:
+        """A step flying `segment` at its own time t_s (seconds since the segment began); sampled at once
+        unless the segment says its samples depend on time alone (Trajectory.sample_is_pure: user code's
+        may keep state or raise, and then must be called in the tick's order)."""
+        if not getattr(segment, "sample_is_pure", False):
+            return cls(phase, segment.sample(t_s), command)
+        step = cls(phase, None, command)
+        step._segment, step._segment_t_s = segment, t_s
+        return step
+
+    @property
+    def has_reference(self) -> bool:
+        """Whether the step has a reference, without sampling it."""
+        return self._segment is not None or self._reference is not None
+
+    @property
+    def reference(self) -> FlatOutput | None:
+        if self._segment is not None:
+            self._reference = self._segment.sample(self._segment_t_s)
+            self._segment = None
+        return self._reference
+
+    def __repr__(self) -> str:
+        return f"MissionStep({self.phase!r}, {self.reference!r}, {self.command!r})"
 
 
 class Mission:
@@ -208,8 +248,9 @@ class Mission:
         self.phase_start_s = t
         self.segment = segment
 
-    def _segment_ref(self, t: float) -> FlatOutput:
-        return self.segment.sample(t - self.phase_start_s)
+    def _on_segment(self, t: float) -> MissionStep:
+        """This tick's step: the current phase, flying the current segment at t (sampled when read)."""
+        return MissionStep.on_segment(self.phase, self.segment, t - self.phase_start_s)
 
     def _hold(self, position: np.ndarray, t: float) -> Trajectory:
         return Hover(np.asarray(position, float), duration_s=1e9)
@@ -345,9 +386,9 @@ class Mission:
                 speed = self.p.takeoff_speed_mps
                 self._enter(Phase.TAKEOFF, t, Line(view.position_enu_m, start, speed_mps=speed)
                             if distance > 1e-6 else Hover(start, 0.0))
-                return MissionStep(self.phase, self._segment_ref(t))
+                return self._on_segment(t)
             self._enter(Phase.SETTLE, t, self._hold(start, t))
-            return MissionStep(self.phase, self._segment_ref(t))
+            return self._on_segment(t)
         if t - self.phase_start_s > self.p.arm_timeout_s:
             self._fail(t, "failsafe", "vehicle did not arm")
             self._enter(Phase.DONE, t)
@@ -357,19 +398,19 @@ class Mission:
     def _takeoff(self, t: float, view: VehicleView) -> MissionStep:
         if t - self.phase_start_s >= self.segment.duration_s:
             self._enter(Phase.SETTLE, t, self._hold(self.track.sample(0.0).position_m, t))
-        return MissionStep(self.phase, self._segment_ref(t))
+        return self._on_segment(t)
 
     def _settle(self, t: float, view: VehicleView) -> MissionStep:
         if t - self.phase_start_s >= self.p.settle_s:
             self._enter(Phase.TRACK, t, self.track)
             self.track_start_s = t
-        return MissionStep(self.phase, self._segment_ref(t))
+        return self._on_segment(t)
 
     def _track(self, t: float, view: VehicleView) -> MissionStep:
         self._note_goal(t, view)
         if t - self.phase_start_s >= self.track.duration_s:
             self._enter(Phase.HOVER, t, self._hold(self.track.sample(self.track.duration_s).position_m, t))
-        return MissionStep(self.phase, self._segment_ref(t))
+        return self._on_segment(t)
 
     def _hover(self, t: float, view: VehicleView) -> MissionStep:
         self._note_goal(t, view)
@@ -378,7 +419,7 @@ class Mission:
             if self.result is None:
                 self.result = "reached_goal" if self.reached_goal_s is not None else "timeout"
             self._begin_landing(t, view)
-        return MissionStep(self.phase, self._segment_ref(t))
+        return self._on_segment(t)
 
     def _land(self, t: float, view: VehicleView) -> MissionStep:
         touched = view.position_enu_m[2] - self.ground_height(view.position_enu_m) <= self.p.touchdown_height_m
@@ -386,14 +427,14 @@ class Mission:
             if t - self.phase_start_s >= self.segment.duration_s:
                 self._enter(Phase.VEHICLE_LAND, t)
                 return self._vehicle_land(t, view)
-            return MissionStep(self.phase, self._segment_ref(t))
+            return self._on_segment(t)
         # the move and descent's own duration (it grows with the distance) plus the slack land_timeout_s
         if touched or t - self.phase_start_s > self.segment.duration_s + self.p.land_timeout_s:
             if touched:
                 self.landing.result = "landed"
             self._enter(Phase.DISARM, t)
             return self._disarm(t, view)
-        return MissionStep(self.phase, self._segment_ref(t))
+        return self._on_segment(t)
 
     def _disarm(self, t: float, view: VehicleView) -> MissionStep:
         if not view.armed and t > self.phase_start_s:
@@ -419,8 +460,8 @@ class Mission:
             # mocap is back: resume where the plan would be (the track clock kept running)
             resume = self._resume_phase
             self._enter(resume[0], resume[1], resume[2])
-            return MissionStep(self.phase, self._segment_ref(t))
-        return MissionStep(self.phase, self._segment_ref(t))
+            return self._on_segment(t)
+        return self._on_segment(t)
 
     def _note_goal(self, t: float, view: VehicleView) -> None:
         if self.reached_goal_s is not None or t - self.track_start_s < self.arrival_s:
@@ -457,7 +498,7 @@ class Mission:
         if lost > self.p.mocap_hold_after_s and self.phase != Phase.FAILSAFE_HOLD:
             self._resume_phase = (self.phase, self.phase_start_s, self.segment)
             self._enter(Phase.FAILSAFE_HOLD, t, self._hold(view.position_enu_m, t))
-            return MissionStep(self.phase, self._segment_ref(t))
+            return self._on_segment(t)
         return None
 
     # The handler of each phase after CONNECT (built once: a dict of bound methods per tick costs ~2 us).

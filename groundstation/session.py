@@ -336,6 +336,8 @@ def _timing(loop: FlightLoop, opts: SessionOptions, sim_time_s: float) -> dict:
     timing["real_time_factor"] = sim_time_s / loop_s if loop_s else None
     if opts.clock == "realtime":
         timing["achieved_rate_hz"] = loop.clock.achieved_rate_hz()
+    else:
+        timing.update(loop.clock.critical_path_summary())
     return timing
 
 

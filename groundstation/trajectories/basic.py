@@ -67,6 +67,8 @@ def _non_negative(value: float, what: str) -> float:
 class Hover:
     """Hold one position (world ENU, m) at yaw `yaw_rad` for `duration_s`."""
 
+    sample_is_pure = True  # a function of t alone (groundstation.trajectory)
+
     def __init__(self, position_m: Sequence[float], duration_s: float, yaw_rad: float = 0.0):
         self.position_m = _vector3(position_m, "hover position_m")
         self.duration_s = _non_negative(duration_s, "hover duration_s")
@@ -82,6 +84,8 @@ class Line:
     r(t) = start + (end - start) s(t / T), T = s'(1/2) |end - start| / speed (s'(1/2) = 35/16 is the
     peak-to-mean speed ratio); the k-th derivative is (end - start) s^(k)(t/T) / T^k.
     """
+
+    sample_is_pure = True  # a function of t alone (groundstation.trajectory)
 
     def __init__(self, start_m: Sequence[float], end_m: Sequence[float], speed_mps: float = 0.5,
                  hold_s: float = 0.0, yaw_rad: float = 0.0):
@@ -121,6 +125,7 @@ class Chain:
         self.segments = segments
         self._starts = list(itertools.accumulate((s.duration_s for s in segments[:-1]), initial=0.0))
         self.duration_s = self._starts[-1] + segments[-1].duration_s
+        self.sample_is_pure = all(getattr(segment, "sample_is_pure", False) for segment in segments)
 
     def sample(self, t_s: float) -> FlatOutput:
         i = max(0, bisect.bisect_right(self._starts, t_s) - 1)
@@ -138,6 +143,8 @@ class Circle:
     z'''' = (i theta'''' - 4 theta' theta''' - 3 theta''^2 - 6 i theta'^2 theta'' + theta'^4) z.
     Default spin-up: the peak tangential acceleration equals the cruise centripetal one, speed^2 / R.
     """
+
+    sample_is_pure = True  # a function of t alone (groundstation.trajectory)
 
     def __init__(self, center_m: Sequence[float], radius_m: float, speed_mps: float, laps: float = 1,
                  spin_up_s: float | None = None, start_angle_rad: float = 0.0, yaw_rad: float = 0.0):
@@ -194,6 +201,8 @@ class Step:
 
     All derivatives are zero: the reference is a true step.
     """
+
+    sample_is_pure = True  # a function of t alone (groundstation.trajectory)
 
     def __init__(self, start_m: Sequence[float], axis: str | int, size_m: float, hold_s: float,
                  step_at_s: float, yaw_rad: float = 0.0):

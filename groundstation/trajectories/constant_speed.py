@@ -71,6 +71,8 @@ def downsample_path(path_m: np.ndarray, keep_every: int) -> np.ndarray:
 class ConstantSpeedTrajectory:
     """Piecewise-linear constant-speed reference with linear speed ramps in the first and last segments."""
 
+    sample_is_pure = True  # a function of t alone (groundstation.trajectory)
+
     def __init__(self, waypoints_m: np.ndarray, speed_mps: float, end_segment_time_factor: float):
         points = np.asarray(waypoints_m, float).reshape(-1, 3)
         if len(points) == 0:

@@ -133,6 +133,8 @@ class MinSnapTrajectory:
     segment (rows: position, velocity, ..., snap, each x, y, z) maps them to all 15 numbers in one dot.
     """
 
+    sample_is_pure = True  # a function of t alone (groundstation.trajectory)
+
     def __init__(self, waypoints_m: np.ndarray, segment_times_s: np.ndarray, coefficients: np.ndarray):
         self.waypoints_m = waypoints_m  # (K, 3)
         self.segment_times_s = segment_times_s  # (n,)

@@ -35,6 +35,11 @@ from model.errors import UserError
 _TIMESTAMP = struct.Struct(">Q")
 
 
+def _record(stamp_s: float, frame: bytes) -> bytes:
+    """One tlog record: the time (microseconds, big-endian) and the frame."""
+    return _TIMESTAMP.pack(max(0, int(round(stamp_s * 1e6)))) + bytes(frame)
+
+
 class TlogWriter:
     """Appends time-stamped frames to a .tlog file; a context manager. `clock()` returns seconds."""
 
@@ -43,7 +48,7 @@ class TlogWriter:
         self.path = Path(path)
         self.clock = clock
         self.fsync = fsync
-        self._buffer: list[bytes] | None = [] if buffered else None  # records not yet flushed
+        self._buffer: list[tuple[float, bytes]] | None = [] if buffered else None  # not yet flushed
         self.frames_written = 0
         self.bytes_written = 0
         self._fd: int | None = None
@@ -59,18 +64,17 @@ class TlogWriter:
         if self._fd is None:
             raise ValueError(f"{self.path}: tlog is closed")
         stamp_s = self.clock() if time_s is None else time_s
-        record = _TIMESTAMP.pack(max(0, int(round(stamp_s * 1e6)))) + bytes(frame)
         self.frames_written += 1
-        self.bytes_written += len(record)
-        if self._buffer is not None:
-            self._buffer.append(record)
+        self.bytes_written += _TIMESTAMP.size + len(frame)
+        if self._buffer is not None:  # packed at flush(), off the caller's critical path
+            self._buffer.append((stamp_s, frame if type(frame) is bytes else bytes(frame)))  # a copy if mutable
         else:
-            self._write(record)
+            self._write(_record(stamp_s, frame))
 
     def flush(self) -> None:
         """Write the buffered records (buffered=True) in one call; nothing to do otherwise."""
         if self._buffer and self._fd is not None:
-            records, self._buffer = b"".join(self._buffer), []
+            records, self._buffer = b"".join([_record(stamp_s, frame) for stamp_s, frame in self._buffer]), []
             self._write(records)
 
     def _write(self, data: bytes) -> None:

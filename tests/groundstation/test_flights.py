@@ -54,6 +54,10 @@ def test_fly_hover_in_moments_mode_meets_the_hover_target_and_logs_everything(tm
     assert summary["rms_tracking_error_m"] <= HOVER_RMS_TARGET_M
     assert summary["estimator"]["rms_position_error_m"] <= 0.003
     assert json.loads((log / "summary.json").read_text()) == summary
+    # lockstep: the critical path per tick (tick record -> ack) is reported, a part of each tick's wall time
+    timing = summary["timing"]
+    tick_us = timing["loop_wall_s"] / timing["ticks"] * 1e6
+    assert 0 < timing["ack_after_tick_us_p50"] < tick_us and 0 < timing["ack_after_tick_us_mean"] < tick_us
 
     # The link figures agree with what the log holds, frame for frame.
     link = summary["link"]

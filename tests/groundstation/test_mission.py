@@ -200,3 +200,69 @@ def test_crash_report_ends_the_mission():
     t += DT
     assert m.update(t, view(t, [0, 0, 1], crashed=True)).phase == Phase.DONE
     assert m.result == "crashed"
+
+
+class CountingTrack:
+    """A trajectory that keeps state, as user code may: it records every time it is asked for, in order.
+    It does not declare sample_is_pure, so the mission must sample it during the tick that asks."""
+
+    def __init__(self, track):
+        self.track = track
+        self.duration_s = track.duration_s
+        self.asked: list[float] = []
+
+    def sample(self, t_s):
+        self.asked.append(t_s)
+        return self.track.sample(t_s)
+
+
+def test_a_pure_segment_is_sampled_when_the_reference_is_read_with_the_tick_time_it_was_asked_for():
+    m, t = airborne_mission()
+    step, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    assert step.has_reference
+    m.reference_at(t + 0.004)  # compensation reads a later time first; the step's value must not move
+    expected = m.track.sample(t - m.track_start_s)
+    later = m.update(t + DT, view(t + DT, [0, 0, 1]))  # the next tick, before the first step is read
+    assert later.phase == Phase.TRACK
+    for name in ("position_m", "velocity_mps", "acceleration_mps2", "jerk_mps3", "snap_mps4"):
+        np.testing.assert_array_equal(getattr(step.reference, name), getattr(expected, name))
+    assert step.reference is step.reference  # sampled once, then kept
+
+
+def test_a_segment_that_may_keep_state_is_sampled_in_the_ticks_order():
+    track = CountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
+    m, t = airborne_mission(track)
+    step, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    asked_before = len(track.asked)
+    t += DT
+    step = m.update(t, view(t, [0, 0, 1]))
+    assert track.asked[asked_before:] == [t - m.track_start_s]  # asked during update, not when read
+    m.reference_at(t + 0.004)
+    assert track.asked[-1] == t + 0.004 - m.track_start_s
+    assert step.reference.position_m[0] == Line([0, 0, 1], [1, 0, 1], speed_mps=0.5).sample(
+        t - m.track_start_s).position_m[0]
+    assert len(track.asked) == asked_before + 2
+
+
+def test_a_chain_is_pure_only_when_all_its_segments_are():
+    from groundstation.trajectories.basic import Chain, Hover
+
+    line = Line([0, 0, 1], [1, 0, 1], speed_mps=0.5)
+    assert Chain(line, Hover([1, 0, 1], 1.0)).sample_is_pure
+    assert not Chain(line, CountingTrack(line)).sample_is_pure
+
+
+def test_a_pure_segment_is_not_sampled_until_the_reference_is_read():
+    class PureCountingTrack(CountingTrack):
+        sample_is_pure = True
+
+    track = PureCountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
+    m, t = airborne_mission(track)
+    step, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    asked_before = len(track.asked)
+    t += DT
+    step = m.update(t, view(t, [0, 0, 1]))
+    assert len(track.asked) == asked_before  # off the critical path: nothing sampled yet
+    first, second = step.reference, step.reference
+    assert first is second
+    assert track.asked[asked_before:] == [t - m.track_start_s]

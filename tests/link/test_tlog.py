@@ -151,3 +151,16 @@ def test_buffered_writer_holds_records_until_flush_and_close(tmp_path):
         buffered.write(frame, time_s=10.0 + i)
     buffered.close()
     assert buffered_path.read_bytes() == plain_path.read_bytes()
+
+
+def test_a_buffered_record_is_the_frame_as_it_was_when_written(tmp_path):
+    """Records are packed at flush(): a frame handed over in a buffer the caller reuses (a bytearray)
+    must still be logged as it was at write(), and the byte count must be what reaches the file."""
+    frame = bytearray(Codec(1).encode(TimeSync(1, 2)))
+    original = bytes(frame)
+    writer = TlogWriter(tmp_path / "reused.tlog", buffered=True)
+    writer.write(frame, time_s=5.0)
+    frame[:] = bytes(len(frame))  # the caller's buffer is overwritten before the flush
+    writer.close()
+    assert (tmp_path / "reused.tlog").read_bytes()[8:] == original
+    assert writer.bytes_written == (tmp_path / "reused.tlog").stat().st_size

@@ -1,0 +1,70 @@
+"""The lockstep clock's critical-path measure: from a tick's record being taken to its ack being sent.
+
+The emulator cannot step past the next tick before the ack (simulator.lockstep), so this span is what the
+ground station adds to every simulated tick (benchmarks/loop_bench.py reads it from the flight summary).
+Driven here with an in-memory clock key and a link with no frames; the waits are real sleeps.
+"""
+
+import time
+
+from groundstation.clocks import LockstepClock
+from link.clock import ClockTick, unpack_ack
+
+PERIOD_S = 0.002
+WORK_S = 0.03  # the ground station's work between the tick and its ack
+LATE_S = 0.06  # how long each tick record takes to arrive: waiting, not the ground station's work
+
+
+class NoFrames:
+    """A VehicleLink with nothing to deliver (a tick that announces no frames)."""
+
+    speaks_crtp = False
+    uplink_sent = 0
+
+    def raw_counts(self):
+        return (0, 0, 0)
+
+    def fetch(self, timeout_s=0.0, wait_on=0):
+        pass
+
+    def deliver(self, counts=None):
+        pass
+
+
+class LateTicks:
+    """The clock key: each tick record arrives LATE_S after it is asked for; acks are kept."""
+
+    rx = "test/clock"
+
+    def __init__(self, ticks: int):
+        self.records = [ClockTick(k, round(k * PERIOD_S * 1e9), 0, 0, 0).pack() for k in range(ticks)]
+        self.acks = []
+
+    def receive(self, timeout_s=0.0):
+        if not self.records:
+            return []
+        time.sleep(LATE_S)
+        return [self.records.pop(0)]
+
+    def send(self, data):
+        self.acks.append(unpack_ack(data))
+        return True
+
+
+def test_the_critical_path_runs_from_the_tick_record_to_the_ack_and_excludes_the_wait_for_the_tick():
+    transport = LateTicks(3)
+    clock = LockstepClock(PERIOD_S, NoFrames(), transport)
+    for k in range(3):
+        assert clock.wait() == k * PERIOD_S
+        time.sleep(WORK_S)
+        clock.release(clock.now() + PERIOD_S)
+        clock.done()
+    assert [ack.tick for ack in transport.acks] == [0, 1, 2]
+    summary = clock.critical_path_summary()
+    # at least the work; far below work + the wait for the record (a busy machine may add some)
+    assert WORK_S * 1e6 <= summary["ack_after_tick_us_p50"] < (WORK_S + LATE_S) * 1e6
+    assert WORK_S * 1e6 <= summary["ack_after_tick_us_mean"] < (WORK_S + LATE_S) * 1e6
+
+
+def test_no_tick_no_critical_path():
+    assert LockstepClock(PERIOD_S, NoFrames(), LateTicks(0)).critical_path_summary() == {}
