@@ -6,10 +6,14 @@ Prints, from one run:
    extracted and run from PYTHONPATH) and by this tree in the same run, each as a ratio to the floor (issue
    19's target: >= 80 %). The floor of the layout is the lockstep real-time factor of the same emulator
    (in this process) against a ground station that does no work at all (emulator_bench's responder: it
-   acks each tick and sends one fixed command), at the mode's rate, median of FLOOR_RUNS runs, with the
-   ideal and the crazyflie firmware (`cfstack fly` flies the latter, so the ratio is to that floor).
+   acks each tick and sends one fixed command), at the mode's rate, with the ideal and the crazyflie
+   firmware: the median of FLOOR_RUNS runs before the flights and FLOOR_RUNS after them. Each flight's
+   ratio is to the crazyflie firmware's floor (what `cfstack fly` flies) from one floor run just before
+   its baseline flight and one just after its new flight: the machine's load drifts within a run.
    Then each flight's ground-station work per tick by part (waiting, codec, estimator, controller,
-   mission, logging; flight_parts.py), baseline -> new.
+   mission, logging; flight_parts.py), baseline -> new; and its critical path per tick (tick record
+   taken -> ack sent, from the flight's summary), with what that predicts for its share of the floor and
+   the critical path that 80 % needs (critical_path_table).
 2. Realtime: the ground station at 500 Hz with the emulator at 1 kHz beside it for a hover flight: tick
    work time p50/p99, deadline-miss rate, achieved rates of both.
 3. End-to-end latency in that realtime flight: from the sample time of the newest IMU sample a command
@@ -101,24 +105,33 @@ def fly_timed(args: list[str], log: Path, tree: Path | None) -> tuple[dict, dict
     return plain, json.loads(out.read_text())
 
 
-def floors() -> tuple[dict[tuple[str, str], float], dict[tuple[str, str], float]]:
-    """The layout's floor per (mode, firmware): the emulator against a ground station that does no work;
-    and that responder's own critical path per tick (tick record taken -> ack sent, us; median of runs)."""
-    print(f"   floor: the emulator against a zero-work ground station (emulator_bench responder), "
-          f"median of {FLOOR_RUNS} runs of {FLOOR_SECONDS:g} s simulated; load average {os.getloadavg()[0]:.1f}")
-    out, critical = {}, {}
-    for firmware in FLOOR_FIRMWARES:
-        for mode in TARGET_RTF:
-            rate_hz = DEFAULT_RATE_HZ[mode]
-            period_s = 1.0 / rate_hz
-            flown = [emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, FLOOR_SECONDS, period_s, True, 0, profile=False,
-                                              firmware=firmware) for _ in range(FLOOR_RUNS)]
-            runs = [run["rtf"] for run in flown]
-            out[mode, firmware] = statistics.median(runs)
-            critical[mode, firmware] = statistics.median(_responder_critical_us(run["responder"]) for run in flown)
-            print(f"   {mode:9} at {rate_hz:3.0f} Hz, firmware {firmware:9}: floor {out[mode, firmware]:5.1f}x "
-                  f"({period_s / out[mode, firmware] * 1e6:4.0f} us/tick; runs {', '.join(f'{x:.1f}x' for x in runs)})")
-    return out, critical
+def _floor_run(mode: str, firmware: str) -> dict:
+    """One run of the layout's floor: the emulator against a ground station that does no work
+    (emulator_bench's responder), at the mode's rate, FLOOR_SECONDS simulated."""
+    return emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, FLOOR_SECONDS, 1.0 / DEFAULT_RATE_HZ[mode], True, 0,
+                                    profile=False, firmware=firmware)
+
+
+def floor_runs() -> dict[tuple[str, str], list[dict]]:
+    """FLOOR_RUNS runs of the floor per (mode, firmware)."""
+    return {(mode, firmware): [_floor_run(mode, firmware) for _ in range(FLOOR_RUNS)]
+            for firmware in FLOOR_FIRMWARES for mode in TARGET_RTF}
+
+
+def floors(before: dict, after: dict) -> None:
+    """Print the floor per (mode, firmware): the median of its runs before and after the flights (the
+    machine's load drifts over a run); an overview of the layout (each flight's ratio uses its own floor runs)."""
+    print(f"   floor: the emulator against a zero-work ground station (emulator_bench responder), median of "
+          f"{FLOOR_RUNS} runs before and {FLOOR_RUNS} after the flights, {FLOOR_SECONDS:g} s simulated each; "
+          f"load average {os.getloadavg()[0]:.1f}")
+    out = {}
+    for key in before:
+        out[key] = statistics.median(run["rtf"] for run in before[key] + after[key])
+        mode, firmware = key
+        period_s = 1.0 / DEFAULT_RATE_HZ[mode]
+        runs = [", ".join(f"{run['rtf']:.1f}x" for run in group) for group in (before[key], after[key])]
+        print(f"   {mode:9} at {DEFAULT_RATE_HZ[mode]:3.0f} Hz, firmware {firmware:9}: floor {out[key]:5.1f}x "
+              f"({period_s / out[key] * 1e6:4.0f} us/tick; runs before {runs[0]}; after {runs[1]})")
 
 
 def _responder_critical_us(responder: dict) -> float:
@@ -147,21 +160,30 @@ def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
         flights.append((f"maze {MAZE}", ["fly", str(SHARED_WORLDS / f"{MAZE}.json")]))
     elif not quick:
         print(f"   (maze flights skipped: {SHARED_WORLDS} is absent)")
-    results = {}
+    results, around = {}, {}
+    before = floor_runs()
     for name, args in flights:
         for mode in TARGET_RTF:
+            # each flight pair is compared with floor runs flown just before and just after it, under the same load
+            around[name, mode] = [_floor_run(mode, "crazyflie")]
             for label, source in (("baseline", tree), ("new", None)):
                 log = tmp / f"{name.replace(' ', '_')}_{mode}_{label}"
                 results[name, mode, label] = fly_timed([*args, "--mode", mode], log, source)
                 print(f"   flew {name}, {mode}, {label}", file=sys.stderr, flush=True)  # progress
-    floor, floor_critical = floors()
+            around[name, mode].append(_floor_run(mode, "crazyflie"))
+    floors(before, floor_runs())
+    floor = {key: statistics.median(run["rtf"] for run in runs) for key, runs in around.items()}
+    floor_critical = {key: statistics.median(_responder_critical_us(run["responder"]) for run in runs)
+                      for key, runs in around.items()}
+    print("\n   floor (crazyflie firmware) for each flight: the mean of a floor run just before the baseline's flight "
+          "and one just after the new one")
     print(f"\n{'flight':18} {'mode':9} {'RTF base':>8} {'RTF new':>8} {'new/base':>8} {'floor':>6} "
           f"{'base/floor':>10} {'new/floor':>9} {'result':>13} {'target':>7}")
     for name, _ in flights:
         for mode in TARGET_RTF:
             (base, _), (new, _) = results[name, mode, "baseline"], results[name, mode, "new"]
             rb, rn = base["timing"]["real_time_factor"], new["timing"]["real_time_factor"]
-            f = floor[mode, "crazyflie"]
+            f = floor[name, mode]
             verdict = "PASS" if rn / f >= FLOOR_SHARE_TARGET else "MISS"
             print(f"{name:18} {mode:9} {rb:8.1f} {rn:8.1f} {rn / rb:8.2f} {f:6.1f} {rb / f:10.0%} {rn / f:9.0%} "
                   f"{new['result']:>13} {verdict:>7}")
@@ -193,11 +215,11 @@ def critical_path_table(flights, results, floor, floor_critical) -> None:
         for mode in TARGET_RTF:
             period_s = 1.0 / DEFAULT_RATE_HZ[mode]
             n = overlapped_ticks(period_s)
-            p_floor = floor_critical[mode, "crazyflie"]
-            c = n * period_s / floor[mode, "crazyflie"] * 1e6 - p_floor
+            p_floor = floor_critical[name, mode]
+            c = n * period_s / floor[name, mode] * 1e6 - p_floor
             p = [results[name, mode, label][0]["timing"].get("ack_after_tick_us_mean")
                  for label in ("baseline", "new")]
-            measured = results[name, mode, "new"][0]["timing"]["real_time_factor"] / floor[mode, "crazyflie"]
+            measured = results[name, mode, "new"][0]["timing"]["real_time_factor"] / floor[name, mode]
             needed = (p_floor + c) / FLOOR_SHARE_TARGET - c
             base = "-" if p[0] is None else f"{p[0]:.0f}"  # a revision before the measure: not reported
             print(f"{name:18} {mode:9} {n:2d} {base:>7} {p[1]:6.0f} {p_floor:7.0f} {c:6.0f} "
