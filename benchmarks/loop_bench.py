@@ -140,10 +140,10 @@ def _responder_critical_us(responder: dict) -> float:
     return (responder["frames_wait_s"] + responder["work_s"]) / answered * 1e6
 
 
-def overlapped_ticks(period_s: float) -> int:
-    """How many ticks one emulator round covers: 2 when the lookahead horizon reaches a whole tick past the
-    one just published (the emulator computes tick k+1 while the ground station computes tick k), else 1."""
-    horizon_s = Emulator(emulator_bench.make_config(DEFAULT_MAVLINK_RADIO, 1, 0)).lockstep.lookahead_horizon_s()
+def overlapped_ticks(period_s: float, horizon_s: float) -> int:
+    """How many ticks one emulator round covers: 2 when the lookahead horizon (after a tick at t = 0) reaches
+    a whole tick past the one just published (the emulator computes tick k+1 while the ground station
+    computes tick k), else 1."""
     return 2 if horizon_s >= period_s - 1e-9 else 1
 
 
@@ -211,10 +211,11 @@ def critical_path_table(flights, results, floor, floor_critical) -> None:
           "hops); share of floor predicted (P_floor + C) / (P + C)")
     print(f"{'flight':18} {'mode':9} {'n':>2} {'P base':>7} {'P new':>6} {'P floor':>7} {'C':>6} "
           f"{'predicted':>9} {'measured':>8} {'P for 80%':>9}")
+    horizon_s = Emulator(emulator_bench.make_config(DEFAULT_MAVLINK_RADIO, 1, 0)).lockstep.lookahead_horizon_s()
     for name, _ in flights:
         for mode in TARGET_RTF:
             period_s = 1.0 / DEFAULT_RATE_HZ[mode]
-            n = overlapped_ticks(period_s)
+            n = overlapped_ticks(period_s, horizon_s)
             p_floor = floor_critical[name, mode]
             c = n * period_s / floor[name, mode] * 1e6 - p_floor
             p = [results[name, mode, label][0]["timing"].get("ack_after_tick_us_mean")

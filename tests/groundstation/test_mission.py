@@ -229,18 +229,23 @@ def test_a_pure_segment_is_sampled_when_the_reference_is_read_with_the_tick_time
     assert step.reference is step.reference  # sampled once, then kept
 
 
-def test_a_segment_that_may_keep_state_is_sampled_in_the_ticks_order():
-    track = CountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
+def one_tick_into_tracking(track: CountingTrack):
+    """A mission flying `track` taken to TRACK, then one tick more: (mission, that tick's time, its step,
+    how many samples the track had been asked for before that tick)."""
     m, t = airborne_mission(track)
-    step, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
+    _, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
     asked_before = len(track.asked)
     t += DT
-    step = m.update(t, view(t, [0, 0, 1]))
+    return m, t, m.update(t, view(t, [0, 0, 1])), asked_before
+
+
+def test_a_segment_that_may_keep_state_is_sampled_in_the_ticks_order():
+    track = CountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
+    m, t, step, asked_before = one_tick_into_tracking(track)
     assert track.asked[asked_before:] == [t - m.track_start_s]  # asked during update, not when read
     m.reference_at(t + 0.004)
     assert track.asked[-1] == t + 0.004 - m.track_start_s
-    assert step.reference.position_m[0] == Line([0, 0, 1], [1, 0, 1], speed_mps=0.5).sample(
-        t - m.track_start_s).position_m[0]
+    assert step.reference.position_m[0] == track.track.sample(t - m.track_start_s).position_m[0]
     assert len(track.asked) == asked_before + 2
 
 
@@ -257,11 +262,7 @@ def test_a_pure_segment_is_not_sampled_until_the_reference_is_read():
         sample_is_pure = True
 
     track = PureCountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
-    m, t = airborne_mission(track)
-    step, t = run_until(m, t, lambda t: [0, 0, 1], Phase.TRACK)
-    asked_before = len(track.asked)
-    t += DT
-    step = m.update(t, view(t, [0, 0, 1]))
+    m, t, step, asked_before = one_tick_into_tracking(track)
     assert len(track.asked) == asked_before  # off the critical path: nothing sampled yet
     first, second = step.reference, step.reference
     assert first is second
