@@ -45,7 +45,7 @@ import emulator_bench  # this folder: the zero-work responder and fly_zenoh (pyt
 import numpy as np
 from bench_paths import SHARED_WORLDS
 
-from groundstation.session import DEFAULT_RATE_HZ
+from groundstation.clocks import DEFAULT_RATE_HZ
 from link.keys import GROUND_STATION_SYSTEM_ID
 from link.mavlink.codec import ActuatorLimits, FrameParser
 from link.mavlink.tlog import read_tlog

@@ -8,7 +8,11 @@ Gives out: a flown session (logs in --log DIR), a human summary or one JSON obje
 one line on stderr for a crash or a failsafe (what, where, when), and an exit code that follows the
 mission: 0 when the goal was reached without a collision in flight (whatever the landing after it did),
 1 otherwise, 2 for bad input.
-`fly` and `step` start an emulator as a child process on a private loopback zenoh endpoint;
+`fly` and `step` start an emulator as a child process on a private loopback zenoh endpoint. `fly` starts it
+as soon as the options and the world are checked, so that its start-up (~0.3 s) overlaps the ground
+station's: the modules that take most of a ground station's start (the session with the estimator, whose
+filterpy imports scipy.stats, ~0.6 s; the planner) are imported after it, where they are used. An error in
+the user's code or in planning stops the child again (one line, as before);
 `groundstation` flies whatever answers at the default endpoint (DEFAULT_ENDPOINT, where `cfstack
 emulator` listens by default) or at --connect/--listen. The ground station never imports the simulator:
 the child is another program.
@@ -25,17 +29,18 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from estimator.sensor_spec import DEFAULT_SENSOR_SPEC, load_sensor_spec
 from groundstation.child_process import die_with_parent
+from groundstation.clocks import DEFAULT_RATE_HZ
 from groundstation.controller import VARIANTS as CONTROLLER_VARIANTS
-from groundstation.planned import KINDS as PLANNED_KINDS
-from groundstation.planned import plan_track
 from groundstation.preflight import checked_world
-from groundstation.session import DEFAULT_RATE_HZ, Displays, SessionOptions, dump_json, human_summary, run_session
 from groundstation.trajectories.basic import make_builtin
 from groundstation.usercode.adapters import CONTROLLER_OUTPUTS
 from groundstation.usercode.loader import builtin_or_user_file
@@ -49,6 +54,9 @@ from model.errors import OneLineParser, UserError
 from model.options import float_in, non_negative_float, positive_float, seed, whole_number
 from model.vehicle import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_model, load_vehicle
 from model.world import World, load_world
+
+if TYPE_CHECKING:
+    from groundstation.session import Displays, SessionOptions
 
 log = logging.getLogger("cfstack.groundstation")
 BUILTIN_TRAJECTORIES = ("hover", "line", "circle")
@@ -209,6 +217,8 @@ def _controller_variant(args) -> str | None:
 def _user_code(args, world: World | None, objects: dict | None = None):
     """The user's controller, trajectory and planner, loaded and constructed now, before any emulator runs
     (a slow WorldTraj cannot make a handshake time out). objects: classes/functions from the Python API."""
+    from groundstation.planned import KINDS as PLANNED_KINDS
+
     named = dict(objects or {})
     trajectories = (*BUILTIN_TRAJECTORIES, *PLANNED_KINDS)
     files = {"controller": builtin_or_user_file(args.controller, CONTROLLER_VARIANTS, "controller")[1],
@@ -234,6 +244,8 @@ def _track(args, world: World | None, user_code=None):
                                                     "planned_duration_s": track.duration_s}, None
     if world is not None and world.start is not None and world.goal is not None \
             and args.trajectory not in BUILTIN_TRAJECTORIES:
+        from groundstation.planned import plan_track
+
         planned = plan_track(world, args.trajectory or DEFAULT_PLANNED, load_vehicle(args.vehicle_model),
                              speed_mps=args.speed, resolution=args.resolution, margin=args.margin,
                              accel_mps2=args.accel, planning=args.planning,
@@ -268,6 +280,8 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
         _check_crtp(args, clock, signing)
     elif args.uri is not None:
         raise UserError("argument --uri: a cflib URI is for --link crtp")
+    from groundstation.session import SessionOptions
+
     return SessionOptions(
         track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
         connection="zenoh", zenoh_options=zopts, radio_link=args.radio_link, link=args.link,
@@ -335,6 +349,8 @@ def _displays(args) -> Displays:
 
         parse_connection(gcs_connection(args.gcs))  # an unknown scheme is one line now
         gcs = load_gcs_settings(origin=args.gcs_origin)
+    from groundstation.session import Displays
+
     # the GCS link checks signatures with the same key, in a Signing of its own (its own streams and clock)
     return Displays(view=args.view, view_save=args.view_save, gcs=args.gcs, gcs_settings=gcs,
                     gcs_commands=args.gcs_commands, gcs_signing=signing_from_args(args) if gcs else None)
@@ -360,6 +376,8 @@ def _explain_silence(summary: dict, zopts: dict) -> None:
 
 def _report(summary: dict, as_json: bool, prog: str) -> int:
     """Print the summary (and the failure line on stderr); the exit code follows the mission."""
+    from groundstation.session import dump_json, human_summary
+
     failure = summary.get("failure")
     if failure is not None:
         print(f"{prog}: {failure['reason']}", file=sys.stderr)
@@ -387,6 +405,8 @@ def groundstation_command(argv: list[str]) -> int:
     zopts = zenoh_options_from_args(args)
     if not zopts.get("connect") and not zopts.get("listen"):
         zopts["connect"] = [DEFAULT_ENDPOINT]  # where `cfstack emulator` listens by default
+    from groundstation.session import run_session
+
     result = run_session(_options(args, world, track, goal, extra, plan, args.clock, zopts, user_code))
     _explain_silence(result.summary, zopts)
     return _report(result.summary, args.json, p.prog)
@@ -427,6 +447,7 @@ class EmulatorChild:
         cmd += getattr(args, "emulator_extra", [])
         # stderr to a file, not a pipe: a pipe nobody reads during the flight could fill and stall the child
         self.stderr = tempfile.TemporaryFile(mode="w+")
+        self.started_s = time.monotonic()
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                      stderr=self.stderr, text=True, env=os.environ.copy(),
                                      preexec_fn=die_with_parent)
@@ -443,7 +464,7 @@ class EmulatorChild:
         return f"the emulator stopped: {err[-1]}" if err else f"the emulator stopped (exit {self.proc.returncode})"
 
     def check_started(self) -> None:
-        time.sleep(EMULATOR_START_CHECK_S)
+        time.sleep(max(0.0, self.started_s + EMULATOR_START_CHECK_S - time.monotonic()))
         if self.proc.poll() is not None:
             err = self._stderr_lines()
             raise UserError(err[-1] if err else "the emulator child exited at start")
@@ -482,11 +503,13 @@ def fly(args: argparse.Namespace, objects: dict | None = None):
     functions given as Python objects (the API). Returns the SessionResult."""
     world = _world(args.world, args.vehicle_model)
     airborne = not args.from_ground and world is not None and world.start is not None
-    user_code = _user_code(args, world, objects)
-    track, goal, extra, plan = _track(args, world, user_code)
-    opts = _options(args, world, track, goal, extra, plan, args.clock, zenoh_options_from_args(args), user_code)
-    _warn_if_one_crazyradio_cannot_carry_mavlink(args)
-    return _fly_with_emulator(args, world, airborne, opts)
+    zopts = zenoh_options_from_args(args)
+    with emulator_child(args, world, airborne, zopts) as child:
+        user_code = _user_code(args, world, objects)
+        track, goal, extra, plan = _track(args, world, user_code)
+        opts = _options(args, world, track, goal, extra, plan, args.clock, zopts, user_code)
+        _warn_if_one_crazyradio_cannot_carry_mavlink(args)
+        return _run_against(child, opts)
 
 
 def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:
@@ -517,20 +540,36 @@ def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:
 
 def _fly_with_emulator(args, world: World | None, airborne: bool, opts: SessionOptions):
     """Run the session against a child emulator (or the one --connect names)."""
-    zopts = opts.zenoh_options
-    child = None
-    if not zopts.get("connect"):
-        start = world.start if world is not None else None
-        child = EmulatorChild(args, getattr(args, "world", None), start, airborne, args.clock)
+    with emulator_child(args, world, airborne, opts.zenoh_options) as child:
+        return _run_against(child, opts)
+
+
+@contextmanager
+def emulator_child(args, world: World | None, airborne: bool, zopts: dict) -> Iterator[EmulatorChild | None]:
+    """The emulator child `fly` and `step` fly (None when --connect names another vehicle), started at once so
+    that its start-up overlaps the ground station's own (its imports, the user's code, the planning); stopped
+    on the way out (an error included), its stderr lines printed with -v."""
+    if zopts.get("connect"):
+        yield None
+        return
+    start = world.start if world is not None else None
+    child = EmulatorChild(args, getattr(args, "world", None), start, airborne, args.clock)
+    try:
+        yield child
+    finally:
+        for line in child.stop():
+            if args.verbose:
+                print(line, file=sys.stderr)
+
+
+def _run_against(child: EmulatorChild | None, opts: SessionOptions):
+    """run_session on the child's private endpoint (or where opts already connect)."""
+    from groundstation.session import run_session
+
+    if child is not None:
         child.check_started()
-        opts.zenoh_options = {**zopts, "connect": [child.endpoint], "listen": []}
+        opts.zenoh_options = {**opts.zenoh_options, "connect": [child.endpoint], "listen": []}
         if child.crtp_port is not None:
             opts.crtp_uri = f"udp://{CRTP_HOST}:{child.crtp_port}"
         opts.peer_failure = child.failure
-    try:
-        return run_session(opts)
-    finally:
-        if child is not None:
-            for line in child.stop():
-                if args.verbose:
-                    print(line, file=sys.stderr)
+    return run_session(opts)

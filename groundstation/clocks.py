@@ -19,6 +19,8 @@ from link.clock import NS_PER_S, ClockAck, unpack_tick
 from model.errors import UserError
 
 log = logging.getLogger("cfstack.groundstation")
+# The flight loop's rate per command mode unless --rate says otherwise (position: the firmware's POSITION_RATE).
+DEFAULT_RATE_HZ = {"moments": 500.0, "attitude": 100.0, "position": 100.0}
 
 
 class TickTimer:

@@ -20,7 +20,7 @@ import numpy as np
 
 from estimator.eskf import ErrorStateKF
 from estimator.sensor_spec import SensorSpec, load_sensor_spec, subsampled
-from groundstation.clocks import LockstepClock, RealtimeClock
+from groundstation.clocks import DEFAULT_RATE_HZ, LockstepClock, RealtimeClock
 from groundstation.compensation import LatencyCompensator
 from groundstation.controller import SE3Controller, load_gains
 from groundstation.flight import FlightLoop
@@ -45,7 +45,6 @@ from model.world import World
 
 log = logging.getLogger("cfstack.groundstation")
 
-DEFAULT_RATE_HZ = {"moments": 500.0, "attitude": 100.0, "position": 100.0}  # position: the firmware's POSITION_RATE
 # The course tests np.array_equal(start, end): a closed trajectory's end may differ from its start by rounding.
 COURSE_SAME_POINT_M = 1e-9
 

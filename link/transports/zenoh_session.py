@@ -8,7 +8,8 @@ settings, closed when the last user releases it (or at interpreter exit); ZenohS
 `python -m link.transports.zenoh_session --mode router --listen tcp/127.0.0.1:7447` router for tests and labs.
 
 Defaults (our choice, not zenoh's): peer mode, multicast scouting OFF, so a process only talks to the
-endpoints it is given. A config file (JSON5, zenoh's own format) is loaded first; any option given
+endpoints it is given; a connect that found nobody listening is retried after 20 ms, doubling
+(CONNECT_RETRY). A config file (JSON5, zenoh's own format) is loaded first; any option given
 explicitly overrides the file's value. zenoh's own transport settings are kept: its low-latency unicast
 transport (transport/unicast/lowlatency, which needs QoS off) was measured with `cfstack link-bench` at
 ~20-30 us lower round trips on loopback, but it sends every sample in its own write, so a burst of
@@ -42,6 +43,10 @@ ENDPOINT_EXAMPLE = "tcp/127.0.0.1:7447"
 # Where `cfstack emulator` listens and `cfstack groundstation` connects when given neither --connect nor
 # --listen, so the two commands meet on one machine as written (zenoh's own default port, 7447).
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+# Connect retries (our default unless a config file is given): zenoh retries a connect that found nobody
+# listening 1 s later, then 2 and 4 s; `cfstack fly` starts its emulator child and its ground station at
+# once, and a user may start the ground station first, so try again after 20 ms, doubling up to zenoh's 4 s.
+CONNECT_RETRY = {"period_init_ms": 20, "period_max_ms": 4000, "period_increase_factor": 2}
 
 
 def check_endpoint(endpoint: str) -> str:
@@ -129,6 +134,8 @@ class ZenohSettings:
                 _insert(config, "scouting/delay", 0)
         if self.connect:
             _insert(config, "connect/endpoints", list(self.connect))
+            if not from_file:
+                _insert(config, "connect/retry", CONNECT_RETRY)
         if self.listen is not None:
             _insert(config, "listen/endpoints", list(self.listen))
         return config

@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from groundstation.clocks import DEFAULT_RATE_HZ
 from groundstation.logread import read_log
 from groundstation.mission import load_mission_params
-from groundstation.session import DEFAULT_RATE_HZ
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
 from link.mavlink.codec import IFLAG_SIGNED, ActuatorLimits, Codec, FrameParser
 from link.mavlink.signing import ENV_VAR, Signing
@@ -85,6 +85,7 @@ def world(tmp_path_factory) -> Path:
 def fly(world: Path, folder: Path, *extra: str, radio: str = RADIO, env: dict | None = None):
     """`cfstack fly` with the emulator's radio report; (exit code, summary, states log, radio report)."""
     report = folder / "radio.json"
+    folder.mkdir(parents=True, exist_ok=True)  # the emulator child checks the ledger's folder as it starts
     run = cfstack("fly", str(world), "--firmware", "ideal", "--mode", MODE, "--radio", radio, "--clock", "lockstep",
                   "--seed", str(SEED),
                   "--json", "--log", str(folder / "log"), "--id", f"fs{uuid.uuid4().hex[:8]}", *PLAN_ARGS,

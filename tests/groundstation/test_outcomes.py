@@ -12,6 +12,8 @@ seeded, over zenoh, as `cfstack fly` runs them) and on the command line's option
 import csv
 import json
 import math
+import subprocess
+import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -116,6 +118,19 @@ def test_a_bad_option_is_one_line_and_exit_code_2_at_once(command, option, value
     extra = {"sweep": ("--latency", "0", "--loss", "0"), "plan": ("missing.json",)}.get(command, ())
     run = cfstack(command, *extra, f"{option}={value}", timeout=30)
     assert option in one_line_error(run) and run.stdout == ""
+
+
+# What takes most of a ground station's start-up (the estimator's filterpy imports scipy.stats: ~0.6 s here).
+HEAVY_MODULES = ("groundstation.session", "estimator.eskf", "filterpy", "scipy.stats", "groundstation.planned")
+
+
+def test_fly_checks_its_options_and_starts_its_emulator_before_the_heavy_modules_load():
+    # `cfstack fly` imports groundstation.cli, parses, checks the world and starts the child; the heavy
+    # modules come after, so the child's own start-up overlaps them
+    probe = ("import sys, groundstation.cli; "
+             f"print(','.join(m for m in {HEAVY_MODULES!r} if m in sys.modules))")
+    run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stdout.strip() == "", run.stdout + run.stderr
 
 
 def test_step_offers_no_planning_options():
