@@ -1,8 +1,9 @@
 """The benchmarks' baseline: modules as they were at a git revision, loaded beside the working tree's.
 
-Takes in: a git revision and {short name: repository path of a module}.
+Takes in: a git revision and {short name: repository path of a module}, or a revision and a scratch folder.
 Gives out: the modules at that revision as package `bench_baseline` (written to a scratch folder), with
-their imports of one another pointed at each other, and every other import served by the working tree.
+their imports of one another pointed at each other, and every other import served by the working tree;
+or the whole repository at that revision, extracted (baseline_tree), to run from PYTHONPATH.
 """
 
 from __future__ import annotations
@@ -32,3 +33,12 @@ def baseline_modules(rev: str, modules: dict[str, str], workdir: Path) -> dict[s
         (package / f"{name}.py").write_text(source)
     sys.path.insert(0, str(workdir))
     return {name: importlib.import_module(f"{PACKAGE}.{name}") for name in modules}
+
+
+def baseline_tree(rev: str, tmp: Path) -> Path:
+    """The repository at git revision `rev`, extracted (git archive) into tmp/baseline."""
+    tree = tmp / "baseline"
+    tree.mkdir()
+    archive = subprocess.run(["git", "archive", rev], cwd=REPO, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    return tree

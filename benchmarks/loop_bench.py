@@ -44,6 +44,7 @@ from tempfile import TemporaryDirectory
 import emulator_bench  # this folder: the zero-work responder and fly_zenoh (python puts it on sys.path)
 import numpy as np
 from bench_paths import SHARED_WORLDS
+from git_baseline import baseline_tree
 
 from groundstation.clocks import DEFAULT_RATE_HZ
 from link.keys import GROUND_STATION_SYSTEM_ID
@@ -64,7 +65,6 @@ FLOOR_FIRMWARES = ("ideal", "crazyflie")  # the floor with each onboard side (cf
 # The baseline of section 1: the last commit before issue 19's work (--baseline REV to change it)
 BASELINE_REV = "0f6b840"
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
 # `python -m cfstack` puts its working directory first on sys.path: run outside any tree, so a baseline's
 # PYTHONPATH decides which cfstack runs (its emulator child included), never the directory it was started in
 NEUTRAL_CWD = tempfile.gettempdir()
@@ -78,15 +78,6 @@ def cfstack(*args: str, timeout: float = 900, env: dict | None = None) -> dict:
     if not run.stdout.strip():
         raise SystemExit(f"cfstack {' '.join(args)} failed: {run.stderr.strip()[-300:]}")
     return json.loads(run.stdout)
-
-
-def baseline_tree(rev: str, tmp: Path) -> Path:
-    """The repository at git revision `rev`, extracted (git archive) into tmp/baseline."""
-    tree = tmp / "baseline"
-    tree.mkdir()
-    archive = subprocess.run(["git", "archive", rev], cwd=REPO, capture_output=True, check=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
-    return tree
 
 
 def fly_timed(args: list[str], log: Path, tree: Path | None) -> tuple[dict, dict]:

@@ -41,6 +41,7 @@ from groundstation.child_process import die_with_parent
 from groundstation.clocks import DEFAULT_RATE_HZ
 from groundstation.controller import VARIANTS as CONTROLLER_VARIANTS
 from groundstation.preflight import checked_world
+from groundstation.tickframe import Displays
 from groundstation.trajectories.basic import make_builtin
 from groundstation.usercode.adapters import CONTROLLER_OUTPUTS
 from groundstation.usercode.loader import builtin_or_user_file
@@ -56,7 +57,7 @@ from model.vehicle import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_m
 from model.world import World, load_world
 
 if TYPE_CHECKING:
-    from groundstation.session import Displays, SessionOptions
+    from groundstation.session import SessionOptions
 
 log = logging.getLogger("cfstack.groundstation")
 BUILTIN_TRAJECTORIES = ("hover", "line", "circle")
@@ -266,7 +267,9 @@ def _track(args, world: World | None, user_code=None):
     return track, np.asarray(track.sample(track.duration_s).position_m, float), {"trajectory": name}, None
 
 
-def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, user_code=None) -> SessionOptions:
+def _settings(args, clock: str) -> dict:
+    """The session's settings that come from the command line alone, each checked: a bad one is one line
+    before any process starts (files loaded now)."""
     if args.mode == "position" and args.latency_compensation:
         raise UserError("argument --latency-compensation: not with --mode position (the vehicle's own position "
                         "controller flies the reference; there is no ground-station command to predict)")
@@ -280,24 +283,28 @@ def _options(args, world, track, goal, extra, plan, clock: str, zopts: dict, use
         _check_crtp(args, clock, signing)
     elif args.uri is not None:
         raise UserError("argument --uri: a cflib URI is for --link crtp")
-    from groundstation.session import SessionOptions
-
-    return SessionOptions(
-        track=track, goal_enu_m=goal, world=world, mode=args.mode, rate_hz=args.rate, clock=clock,
-        connection="zenoh", zenoh_options=zopts, radio_link=args.radio_link, link=args.link,
-        crtp_uri=args.uri or _default_crtp_uri(args, clock), prefix=args.prefix,
-        vehicle_id=args.vehicle,
-        vehicle_model=args.vehicle_model, gains=args.gains,
-        # loaded here: a bad file is one line before any process starts
-        sensor_spec=load_sensor_spec(args.sensor_spec),
-        controller_variant=_controller_variant(args), user_code=user_code,
+    return dict(
+        mode=args.mode, rate_hz=args.rate, clock=clock, connection="zenoh", radio_link=args.radio_link,
+        link=args.link, crtp_uri=args.uri or _default_crtp_uri(args, clock), prefix=args.prefix,
+        vehicle_id=args.vehicle, vehicle_model=args.vehicle_model, gains=args.gains,
+        sensor_spec=load_sensor_spec(args.sensor_spec), controller_variant=_controller_variant(args),
         latency_compensation=(args.latency_compensation if args.latency_compensation is not None
                               else COMPENSATION_DEFAULT[args.mode]), log_dir=Path(args.log) if args.log else None,
-        signing=signing, plan=plan,
+        signing=signing,
         # fly and step know which emulated firmware they started; a ground station alone does not
-        extra_summary={**extra, **({"firmware": args.firmware, "vehicle_draw": args.vehicle_draw}
-                                   if hasattr(args, "firmware") else {})},
+        extra_summary=({"firmware": args.firmware, "vehicle_draw": args.vehicle_draw}
+                       if hasattr(args, "firmware") else {}),
         allow_reset=getattr(args, "reset", False), extpose=_extpose(args), displays=_displays(args))
+
+
+def _options(settings: dict, world, track, goal, extra, plan, zopts: dict, user_code=None) -> SessionOptions:
+    """SessionOptions: the command line's checked settings, and what the world, the user's code and the
+    planning gave."""
+    from groundstation.session import SessionOptions
+
+    return SessionOptions(**{**settings, "extra_summary": {**extra, **settings["extra_summary"]}},
+                          track=track, goal_enu_m=goal, world=world, zenoh_options=zopts, user_code=user_code,
+                          plan=plan)
 
 
 def _default_crtp_uri(args, clock: str) -> str:
@@ -349,8 +356,6 @@ def _displays(args) -> Displays:
 
         parse_connection(gcs_connection(args.gcs))  # an unknown scheme is one line now
         gcs = load_gcs_settings(origin=args.gcs_origin)
-    from groundstation.session import Displays
-
     # the GCS link checks signatures with the same key, in a Signing of its own (its own streams and clock)
     return Displays(view=args.view, view_save=args.view_save, gcs=args.gcs, gcs_settings=gcs,
                     gcs_commands=args.gcs_commands, gcs_signing=signing_from_args(args) if gcs else None)
@@ -400,6 +405,7 @@ def groundstation_command(argv: list[str]) -> int:
                         "start) and fly from there; logged")
     args = _parsed(p, argv)
     world = _world(args.world, args.vehicle_model)
+    settings = _settings(args, args.clock)
     user_code = _user_code(args, world)
     track, goal, extra, plan = _track(args, world, user_code)
     zopts = zenoh_options_from_args(args)
@@ -407,7 +413,7 @@ def groundstation_command(argv: list[str]) -> int:
         zopts["connect"] = [DEFAULT_ENDPOINT]  # where `cfstack emulator` listens by default
     from groundstation.session import run_session
 
-    result = run_session(_options(args, world, track, goal, extra, plan, args.clock, zopts, user_code))
+    result = run_session(_options(settings, world, track, goal, extra, plan, zopts, user_code))
     _explain_silence(result.summary, zopts)
     return _report(result.summary, args.json, p.prog)
 
@@ -504,12 +510,12 @@ def fly(args: argparse.Namespace, objects: dict | None = None):
     world = _world(args.world, args.vehicle_model)
     airborne = not args.from_ground and world is not None and world.start is not None
     zopts = zenoh_options_from_args(args)
+    settings = _settings(args, args.clock)
+    _warn_if_one_crazyradio_cannot_carry_mavlink(args)
     with emulator_child(args, world, airborne, zopts) as child:
         user_code = _user_code(args, world, objects)
         track, goal, extra, plan = _track(args, world, user_code)
-        opts = _options(args, world, track, goal, extra, plan, args.clock, zopts, user_code)
-        _warn_if_one_crazyradio_cannot_carry_mavlink(args)
-        return _run_against(child, opts)
+        return _run_against(child, _options(settings, world, track, goal, extra, plan, zopts, user_code))
 
 
 def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:

@@ -35,6 +35,7 @@ from groundstation.grading import (
     stack3,
 )
 from groundstation.mission import Mission, load_mission_params
+from groundstation.tickframe import Displays
 from groundstation.trajectory import Trajectory
 from groundstation.vehicle_link import VehicleLink
 from link.keys import VehicleKeys
@@ -47,18 +48,6 @@ log = logging.getLogger("cfstack.groundstation")
 
 # The course tests np.array_equal(start, end): a closed trajectory's end may differ from its start by rounding.
 COURSE_SAME_POINT_M = 1e-9
-
-
-@dataclass
-class Displays:
-    """What watches the flight besides the log: the rerun view and a MAVLink GCS (none by default)."""
-
-    view: bool = False  # spawn the rerun viewer
-    view_save: str | None = None  # or record the view to this .rrd file
-    gcs: str | None = None  # GCS connection string (udp:HOST:PORT = udpout)
-    gcs_settings: object = None  # groundstation.gcs_forward.GcsSettings, loaded with the options
-    gcs_commands: bool = False  # accept unsigned flight commands from the GCS
-    gcs_signing: object = None  # link.mavlink.signing.Signing: commands signed with it are accepted
 
 
 @dataclass

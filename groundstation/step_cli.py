@@ -33,6 +33,7 @@ from groundstation.cli import (
     _fly_with_emulator,
     _options,
     _parsed,
+    _settings,
     _user_code,
 )
 from groundstation.session import dump_json, human_summary
@@ -115,8 +116,8 @@ def _fly_step(args, defaults) -> tuple[StepMetrics, dict, Path, tuple[np.ndarray
     """One step flight: its metrics, summary, plot, and the (t, y) response (t from the start of tracking)."""
     start = np.array([0.0, 0.0, load_trajectory_params().hover.height_m])
     track = Step(start, args.axis, args.size, hold_s=args.hold, step_at_s=defaults.step_at_s)
-    opts = _options(args, None, track, track.end_m, {"trajectory": f"step-{args.axis}"}, None, args.clock,
-                    zenoh_options_from_args(args), _user_code(args, None))
+    opts = _options(_settings(args, args.clock), None, track, track.end_m, {"trajectory": f"step-{args.axis}"},
+                    None, zenoh_options_from_args(args), _user_code(args, None))
     result = _fly_with_emulator(args, None, False, opts)
     if "track" not in result.record.phase:
         print(human_summary(result.summary), file=sys.stderr)

@@ -2,7 +2,8 @@
 
 Takes in: the values the flight loop writes to states.csv for a tick (or, in replay, one row of a read
 log), plus what a display wants beside them (the vehicle's armed flag and the estimate's body rates).
-Gives out: `TickFrame`, plain tuples in world ENU / body FLU / SI units, `None` where unknown; and
+Gives out: `Displays` (which displays watch a flight, from the command line); `TickFrame`, plain tuples
+in world ENU / body FLU / SI units, `None` where unknown; and
 `frames_from_log(log)`, the frames of a read flight log, so that a replay feeds a display exactly what
 the live flight fed it (the values a live frame has beyond the log, armed, battery charge and rates, are left
 unknown; the motor reports come from motors.csv when the flight kept one).
@@ -17,6 +18,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from model.frames import Quat, Vec3
+
+
+@dataclass
+class Displays:
+    """What watches the flight besides the log: the rerun view and a MAVLink GCS (none by default)."""
+
+    view: bool = False  # spawn the rerun viewer
+    view_save: str | None = None  # or record the view to this .rrd file
+    gcs: str | None = None  # GCS connection string (udp:HOST:PORT = udpout)
+    gcs_settings: object = None  # groundstation.gcs_forward.GcsSettings, loaded with the options
+    gcs_commands: bool = False  # accept unsigned flight commands from the GCS
+    gcs_signing: object = None  # link.mavlink.signing.Signing: commands signed with it are accepted
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ seeded, over zenoh, as `cfstack fly` runs them) and on the command line's option
 import csv
 import json
 import math
+import os
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -131,6 +132,27 @@ def test_fly_checks_its_options_and_starts_its_emulator_before_the_heavy_modules
              f"print(','.join(m for m in {HEAVY_MODULES!r} if m in sys.modules))")
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and run.stdout.strip() == "", run.stdout + run.stderr
+
+
+def test_a_world_with_no_path_is_one_line_and_leaves_no_emulator_behind(tmp_path):
+    # fly starts its emulator child before planning (to overlap their start-ups): a planning failure stops it
+    walled = {"bounds": {"extents": [0, 4, 0, 2, 0, 2]}, "blocks": [{"extents": [1.9, 2.1, 0, 2, 0, 2]}],
+              "start": [0.5, 1.0, 1.0], "goal": [3.5, 1.0, 1.0]}
+    world = tmp_path / "walled.json"
+    world.write_text(json.dumps(walled))
+    prefix = f"nopath{os.getpid()}"
+    run = cfstack("fly", str(world), "--id", prefix, "--json", timeout=60)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 1 and run.stdout == "" and len(lines) == 1 and "no path" in lines[0], run.stderr
+    children = [p for p in Path("/proc").glob("[0-9]*/cmdline") if _reads(p).count(prefix.encode())]
+    assert children == []
+
+
+def _reads(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError:  # the process ended while we looked
+        return b""
 
 
 def test_step_offers_no_planning_options():
