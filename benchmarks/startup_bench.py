@@ -11,9 +11,11 @@ Gives out, per command, baseline and new interleaved, medians over the repeats a
 - `cfstack fly --mode foo`: the wall time of a bad option's one line and exit code 2;
 - `cfstack fly WORLD --json` (lockstep, seeded): its wall time, the loop's own wall time (the summary's
   timing.loop_wall_s, first tick to last), and the rest (start-up + teardown = wall - loop);
-and whether both trees flew the same flight (states.csv compared byte for byte).
+and whether both trees flew the same flight (states.csv compared byte for byte);
+- `cfstack sweep` of --sweep-flights hovers (attitude mode, ideal vehicle, latencies 0, 1, ... ms, all cores):
+  wall time and flights per minute (dask's LocalCluster start included), once per repeat.
 
-Run: `python benchmarks/startup_bench.py [--repeats 5] [--baseline REV]`.
+Run: `python benchmarks/startup_bench.py [--repeats 5] [--sweep-flights 8] [--baseline REV]`.
 """
 
 from __future__ import annotations
@@ -61,6 +63,16 @@ def flight(world_args: list[str], log: Path, env: dict) -> tuple[float, float]:
     return wall, json.loads(run.stdout)["timing"]["loop_wall_s"]
 
 
+def sweep(flights: int, out: Path, env: dict) -> float:
+    """Wall seconds of a sweep of `flights` hovers, each its own `cfstack fly` (as every sweep cell is)."""
+    latencies = ",".join(str(i) for i in range(flights))
+    wall, run = timed(["sweep", "--mode", "attitude", "--latency", latencies, "--loss", "0", "--firmware", "ideal",
+                       "--jobs", str(os.cpu_count() or 1), "--out", str(out), "--extra", "--trajectory hover"], env)
+    if run.returncode != 0:
+        raise SystemExit(f"cfstack sweep failed: {run.stderr.strip()[-300:]}")
+    return wall
+
+
 def row(name: str, base: list[float], new: list[float]) -> str:
     b, n = statistics.median(base), statistics.median(new)
     return f"   {name:44} {b:7.3f} s -> {n:7.3f} s   new/base {n / b:5.2f}"
@@ -71,6 +83,7 @@ def main() -> None:
     ap.add_argument("--baseline", default=BASELINE_REV)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--world", type=Path, default=DEFAULT_WORLD)
+    ap.add_argument("--sweep-flights", type=int, default=8, help="0: no sweep")
     opts = ap.parse_args()
     if opts.world.is_file():
         world_args, what = [str(opts.world)], opts.world.name
@@ -80,7 +93,7 @@ def main() -> None:
         tmp = Path(tmp_name)
         envs = {"base": {**os.environ, "PYTHONPATH": str(baseline_tree(opts.baseline, tmp))},
                 "new": dict(os.environ)}
-        results = {label: {"option": [], "wall": [], "loop": [], "rest": []} for label in envs}
+        results = {label: {"option": [], "wall": [], "loop": [], "rest": [], "sweep": []} for label in envs}
         for k in range(opts.repeats):
             for label, env in envs.items():  # interleaved: the machine's load drifts
                 results[label]["option"].append(bad_option(env))
@@ -88,6 +101,8 @@ def main() -> None:
                 results[label]["wall"].append(wall)
                 results[label]["loop"].append(loop)
                 results[label]["rest"].append(wall - loop)
+                if opts.sweep_flights:
+                    results[label]["sweep"].append(sweep(opts.sweep_flights, tmp / f"sweep_{label}{k}", env))
             print(f"   repeat {k + 1}/{opts.repeats} done", file=sys.stderr, flush=True)  # progress
         same = filecmp.cmp(tmp / "base0" / "states.csv", tmp / "new0" / "states.csv", shallow=False)
     base, new = results["base"], results["new"]
@@ -98,6 +113,10 @@ def main() -> None:
     print(row("   its loop (timing.loop_wall_s)", base["loop"], new["loop"]))
     print(row("   outside the loop (start-up + teardown)", base["rest"], new["rest"]))
     print(f"   states.csv of the two trees' first flights: {'identical' if same else 'DIFFERENT'}")
+    if opts.sweep_flights:
+        print(row(f"sweep of {opts.sweep_flights} hovers", base["sweep"], new["sweep"]))
+        per_min = [60.0 * opts.sweep_flights / statistics.median(results[label]["sweep"]) for label in envs]
+        print(f"   flights per minute: {per_min[0]:.1f} -> {per_min[1]:.1f}")
 
 
 if __name__ == "__main__":

@@ -8,11 +8,13 @@ Gives out: a flown session (logs in --log DIR), a human summary or one JSON obje
 one line on stderr for a crash or a failsafe (what, where, when), and an exit code that follows the
 mission: 0 when the goal was reached without a collision in flight (whatever the landing after it did),
 1 otherwise, 2 for bad input.
-`fly` and `step` start an emulator as a child process on a private loopback zenoh endpoint. `fly` starts it
-as soon as the options and the world are checked, so that its start-up (~0.3 s) overlaps the ground
-station's: the modules that take most of a ground station's start (the session with the estimator, whose
-filterpy imports scipy.stats, ~0.6 s; the planner) are imported after it, where they are used. An error in
-the user's code or in planning stops the child again (one line, as before);
+`fly` and `step` start an emulator as a child process on a private loopback zenoh endpoint. In lockstep
+(where the child's time stands still until the ground station joins) `fly` starts it as soon as the options
+and the world are checked, so that its start-up (~0.3 s) overlaps the ground station's: the modules that
+take most of a ground station's start (the session with the estimator, whose filterpy imports scipy.stats,
+~0.6 s; the planner) are imported after it, where they are used, and an error in the user's code or in
+planning stops the child again (one line, as before). In realtime the child starts last, as the vehicle
+lives from its start;
 `groundstation` flies whatever answers at the default endpoint (DEFAULT_ENDPOINT, where `cfstack
 emulator` listens by default) or at --connect/--listen. The ground station never imports the simulator:
 the child is another program.
@@ -217,7 +219,8 @@ def _controller_variant(args) -> str | None:
 
 def _user_code(args, world: World | None, objects: dict | None = None):
     """The user's controller, trajectory and planner, loaded and constructed now, before any emulator runs
-    (a slow WorldTraj cannot make a handshake time out). objects: classes/functions from the Python API."""
+    (a slow WorldTraj cannot make a handshake time out; `fly`'s lockstep child may be starting, its time
+    standing still until the ground station joins). objects: classes/functions from the Python API."""
     from groundstation.planned import KINDS as PLANNED_KINDS
 
     named = dict(objects or {})
@@ -512,10 +515,19 @@ def fly(args: argparse.Namespace, objects: dict | None = None):
     zopts = zenoh_options_from_args(args)
     settings = _settings(args, args.clock)
     _warn_if_one_crazyradio_cannot_carry_mavlink(args)
-    with emulator_child(args, world, airborne, zopts) as child:
+
+    def prepared() -> SessionOptions:
         user_code = _user_code(args, world, objects)
         track, goal, extra, plan = _track(args, world, user_code)
-        return _run_against(child, _options(settings, world, track, goal, extra, plan, zopts, user_code))
+        return _options(settings, world, track, goal, extra, plan, zopts, user_code)
+
+    if args.clock != "lockstep":
+        # a realtime emulator's vehicle lives from the child's start (an airborne one levels after 0.5 s
+        # without setpoints, its motors stop at 2 s): everything is ready before it starts
+        return _fly_with_emulator(args, world, airborne, prepared())
+    # a lockstep emulator's time stands still until the ground station joins: its start-up overlaps ours
+    with emulator_child(args, world, airborne, zopts) as child:
+        return _run_against(child, prepared())
 
 
 def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:
@@ -552,9 +564,8 @@ def _fly_with_emulator(args, world: World | None, airborne: bool, opts: SessionO
 
 @contextmanager
 def emulator_child(args, world: World | None, airborne: bool, zopts: dict) -> Iterator[EmulatorChild | None]:
-    """The emulator child `fly` and `step` fly (None when --connect names another vehicle), started at once so
-    that its start-up overlaps the ground station's own (its imports, the user's code, the planning); stopped
-    on the way out (an error included), its stderr lines printed with -v."""
+    """The emulator child `fly` and `step` fly (None when --connect names another vehicle): started on entry,
+    stopped on the way out (an error included), its stderr lines printed with -v."""
     if zopts.get("connect"):
         yield None
         return
