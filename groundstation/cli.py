@@ -13,8 +13,8 @@ mission: 0 when the goal was reached without a collision in flight (whatever the
 and the world are checked, so that its start-up (~0.3 s) overlaps the ground station's: the modules that
 take most of a ground station's start (the planner with scipy.optimize, the session with the estimator,
 whose filterpy imports scipy.stats: ~0.7 s together) are imported after it, where they are used, and an
-error in the user's code or in planning stops the child again (one line, as before). In realtime the child starts last, as the vehicle
-lives from its start;
+error in the user's code or in planning stops the child again (one line, as before). In realtime the child
+starts last, as the vehicle lives from its start;
 `groundstation` flies whatever answers at the default endpoint (DEFAULT_ENDPOINT, where `cfstack
 emulator` listens by default) or at --connect/--listen. The ground station never imports the simulator:
 the child is another program.
