@@ -9,7 +9,7 @@ one line on stderr for a crash or a failsafe (what, where, when), and an exit co
 mission: 0 when the goal was reached without a collision in flight (whatever the landing after it did),
 1 otherwise, 2 for bad input.
 `fly` and `step` start an emulator as a child process on a private loopback zenoh endpoint. In lockstep
-(where the child's time stands still until the ground station joins) `fly` starts it as soon as the options
+(where the child's time stands still until the ground station joins) they start it as soon as the options
 and the world are checked, so that its start-up (~0.3 s) overlaps the ground station's: the modules that
 take most of a ground station's start (the planner with scipy.optimize, the session with the estimator,
 whose filterpy imports scipy.stats: ~0.7 s together) are imported after it, where they are used, and an
@@ -31,7 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -521,13 +521,7 @@ def fly(args: argparse.Namespace, objects: dict | None = None):
         track, goal, extra, plan = _track(args, world, user_code)
         return _options(settings, world, track, goal, extra, plan, zopts, user_code)
 
-    if args.clock != "lockstep":
-        # a realtime emulator's vehicle lives from the child's start (an airborne one levels after 0.5 s
-        # without setpoints, its motors stop at 2 s): everything is ready before it starts
-        return _fly_with_emulator(args, world, airborne, prepared())
-    # a lockstep emulator's time stands still until the ground station joins: its start-up overlaps ours
-    with emulator_child(args, world, airborne, zopts) as child:
-        return _run_against(child, prepared())
+    return fly_with_emulator(args, world, airborne, zopts, prepared)
 
 
 def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:
@@ -556,10 +550,17 @@ def _warn_if_one_crazyradio_cannot_carry_mavlink(args) -> None:
               f"expect a late, lossy downlink and a failsafe (python benchmarks/radio_budget.py)", file=sys.stderr)
 
 
-def _fly_with_emulator(args, world: World | None, airborne: bool, opts: SessionOptions):
-    """Run the session against a child emulator (or the one --connect names)."""
-    with emulator_child(args, world, airborne, opts.zenoh_options) as child:
-        return _run_against(child, opts)
+def fly_with_emulator(args, world: World | None, airborne: bool, zopts: dict, prepared: Callable[[], SessionOptions]):
+    """The session against a child emulator (or the one --connect names); prepared() loads the user's code,
+    plans and returns the SessionOptions. In lockstep the child starts first, as its time stands still until
+    the ground station joins: its start-up overlaps ours. In realtime it starts last: its vehicle lives from
+    its start (an airborne one levels after 0.5 s without setpoints, its motors stop at 2 s)."""
+    if args.clock != "lockstep":
+        opts = prepared()
+        with emulator_child(args, world, airborne, zopts) as child:
+            return _run_against(child, opts)
+    with emulator_child(args, world, airborne, zopts) as child:
+        return _run_against(child, prepared())
 
 
 @contextmanager

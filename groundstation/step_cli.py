@@ -30,13 +30,12 @@ from groundstation.cli import (
     FlightFailed,
     _emulator_arguments,
     _flight_arguments,
-    _fly_with_emulator,
     _options,
     _parsed,
     _settings,
     _user_code,
+    fly_with_emulator,
 )
-from groundstation.session import dump_json, human_summary
 from groundstation.step_analysis import StepMetrics, analyze_step, plot_step
 from groundstation.trajectories.basic import Step, load_trajectory_params
 from link.transports.zenoh_session import zenoh_options_from_args
@@ -104,6 +103,8 @@ def command(argv: list[str]) -> int:
     metrics, summary, png, _ = _fly_step(args, defaults)
     lab = load_lab_fig1()
     summary = summary | {"step": dataclasses.asdict(metrics), "step_plot": str(png), "lab_fig1": lab}
+    from groundstation.session import dump_json, human_summary
+
     if args.json:
         print(dump_json(summary))
     else:
@@ -116,10 +117,17 @@ def _fly_step(args, defaults) -> tuple[StepMetrics, dict, Path, tuple[np.ndarray
     """One step flight: its metrics, summary, plot, and the (t, y) response (t from the start of tracking)."""
     start = np.array([0.0, 0.0, load_trajectory_params().hover.height_m])
     track = Step(start, args.axis, args.size, hold_s=args.hold, step_at_s=defaults.step_at_s)
-    opts = _options(_settings(args, args.clock), None, track, track.end_m, {"trajectory": f"step-{args.axis}"},
-                    None, zenoh_options_from_args(args), _user_code(args, None))
-    result = _fly_with_emulator(args, None, False, opts)
+    zopts = zenoh_options_from_args(args)
+    settings = _settings(args, args.clock)
+
+    def prepared():
+        return _options(settings, None, track, track.end_m, {"trajectory": f"step-{args.axis}"}, None, zopts,
+                        _user_code(args, None))
+
+    result = fly_with_emulator(args, None, False, zopts, prepared)
     if "track" not in result.record.phase:
+        from groundstation.session import human_summary
+
         print(human_summary(result.summary), file=sys.stderr)
         raise FlightFailed(f"the flight ended ({result.summary['result']}) before the step was flown")
     t, y = _response(result, args.axis)

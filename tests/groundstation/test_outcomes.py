@@ -125,10 +125,10 @@ def test_a_bad_option_is_one_line_and_exit_code_2_at_once(command, option, value
 HEAVY_MODULES = ("groundstation.session", "estimator.eskf", "filterpy", "scipy.stats", "groundstation.planned")
 
 
-def test_fly_checks_its_options_and_starts_its_emulator_before_the_heavy_modules_load():
-    # `cfstack fly` imports groundstation.cli, parses, checks the world and starts the child; the heavy
-    # modules come after, so the child's own start-up overlaps them
-    probe = ("import sys, groundstation.cli; "
+def test_fly_and_step_check_their_options_and_start_their_emulator_before_the_heavy_modules_load():
+    # `cfstack fly` and `cfstack step` import their module, parse, check the world and start the child; the
+    # heavy modules come after, so the child's own start-up overlaps them
+    probe = ("import sys, groundstation.cli, groundstation.step_cli; "
              f"print(','.join(m for m in {HEAVY_MODULES!r} if m in sys.modules))")
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and run.stdout.strip() == "", run.stdout + run.stderr
