@@ -35,7 +35,6 @@ import socket
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -43,7 +42,7 @@ from tempfile import TemporaryDirectory
 
 import emulator_bench  # this folder: the zero-work responder and fly_zenoh (python puts it on sys.path)
 import numpy as np
-from bench_paths import SHARED_WORLDS
+from bench_paths import NEUTRAL_CWD, SHARED_WORLDS
 from git_baseline import baseline_tree
 
 from groundstation.clocks import DEFAULT_RATE_HZ
@@ -65,9 +64,6 @@ FLOOR_FIRMWARES = ("ideal", "crazyflie")  # the floor with each onboard side (cf
 # The baseline of section 1: the last commit before issue 19's work (--baseline REV to change it)
 BASELINE_REV = "0f6b840"
 HERE = Path(__file__).resolve().parent
-# `python -m cfstack` puts its working directory first on sys.path: run outside any tree, so a baseline's
-# PYTHONPATH decides which cfstack runs (its emulator child included), never the directory it was started in
-NEUTRAL_CWD = tempfile.gettempdir()
 PART_NAMES = ("waiting", "codec", "estimator", "controller", "mission", "logging")
 FIRMWARE_RATE_HZ = 500.0  # simulator/params/firmware.toml commander rate: when a delivered setpoint acts
 

@@ -31,14 +31,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_paths import SHARED_WORLDS
+from bench_paths import NEUTRAL_CWD, SHARED_WORLDS
 from git_baseline import baseline_tree
 
 # The last commit before fly started its emulator child ahead of the heavy imports.
 BASELINE_REV = "254bc4d"
 DEFAULT_WORLD = SHARED_WORLDS / "maze_2024_1.json"
-# `python -m cfstack` puts its working directory first on sys.path: run outside any tree
-NEUTRAL_CWD = tempfile.gettempdir()
 
 
 def timed(args: list[str], env: dict) -> tuple[float, subprocess.CompletedProcess]:

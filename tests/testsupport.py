@@ -7,7 +7,8 @@ Gives out: SHARED_WORLDS, `shared_world(name)` (the file, or a visible skip sayi
 naming the missing folder, so the cases never vanish silently), `free_port(kind)` (the product's
 link.transports.base.free_loopback_port), `cfstack(*args)` (the command as a user runs it: a
 subprocess, output captured, no stdin, a timeout), `one_line_error(run)` (the refusal's single stderr line),
-`wait_for_text(path, text, timeout_s)`, and MAVProxy as the real GCS client: `MAVPROXY`, `needs_mavproxy`,
+`wait_for_text(path, text, timeout_s)`, `processes_with(text)` (the command lines of this machine's processes,
+other than pytest's, that contain it), and MAVProxy as the real GCS client: `MAVPROXY`, `needs_mavproxy`,
 `mavproxy(master, folder)`.
 Importable from every test module (pyproject.toml: pytest pythonpath = ["tests"]).
 """
@@ -15,6 +16,7 @@ Importable from every test module (pyproject.toml: pytest pythonpath = ["tests"]
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
 import signal
 import subprocess
@@ -75,6 +77,21 @@ def wait_for_text(path: Path, text: str, timeout_s: float) -> bool:
             return True
         time.sleep(0.1)
     return False
+
+
+def processes_with(text: str) -> list[str]:
+    """The command lines (arguments joined by spaces) of the running processes that contain `text`,
+    pytest's own left out."""
+    found = []
+    for pid in os.listdir("/proc"):
+        if pid.isdigit():
+            try:
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:  # the process ended while we looked
+                continue
+            if text in cmdline and "pytest" not in cmdline:
+                found.append(cmdline)
+    return found
 
 
 MAVPROXY = shutil.which("mavproxy.py")

@@ -7,7 +7,6 @@ complete after a flight and readable after the ground station is killed; one-lin
 """
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -26,7 +25,7 @@ from model.vehicle import load_vehicle
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from testsupport import cfstack, free_port  # noqa: E402
+from testsupport import cfstack, free_port, processes_with  # noqa: E402
 
 SUMMARY_KEYS = {"result", "reached_goal", "collided", "min_clearance_m", "flight_time_s", "rms_tracking_error_m",
                 "max_tracking_error_m", "final_position_error_m", "estimator", "link", "sim_time_s",
@@ -118,22 +117,9 @@ def test_a_killed_ground_station_leaves_readable_logs_and_no_emulator(tmp_path):
     assert len(frames) >= 2 * len(flight.t_s) - 10  # about an IMU sample in and a command out per tick
     # the child emulator was told to die with its parent (it would otherwise wait for acks forever)
     deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and _processes_with(prefix):
+    while time.monotonic() < deadline and processes_with(prefix):
         time.sleep(0.2)
-    assert not _processes_with(prefix)
-
-
-def _processes_with(text: str) -> list[str]:
-    found = []
-    for pid in os.listdir("/proc"):
-        if pid.isdigit():
-            try:
-                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-            except OSError:
-                continue
-            if text in cmdline and "pytest" not in cmdline:
-                found.append(cmdline)
-    return found
+    assert not processes_with(prefix)
 
 
 @pytest.mark.parametrize("content, problem", [

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from testsupport import cfstack, one_line_error
+from testsupport import cfstack, one_line_error, processes_with
 
 from model.vehicle import load_vehicle
 from model.world import load_world
@@ -144,15 +144,7 @@ def test_a_world_with_no_path_is_one_line_and_leaves_no_emulator_behind(tmp_path
     run = cfstack("fly", str(world), "--id", prefix, "--json", timeout=60)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 1 and run.stdout == "" and len(lines) == 1 and "no path" in lines[0], run.stderr
-    children = [p for p in Path("/proc").glob("[0-9]*/cmdline") if _reads(p).count(prefix.encode())]
-    assert children == []
-
-
-def _reads(path: Path) -> bytes:
-    try:
-        return path.read_bytes()
-    except OSError:  # the process ended while we looked
-        return b""
+    assert processes_with(prefix) == []
 
 
 def test_step_offers_no_planning_options():
