@@ -7,7 +7,9 @@ Prints, from one run:
    19's target: >= 80 %). The floor of the layout is the lockstep real-time factor of the same emulator
    (in this process) against a ground station that does no work at all (emulator_bench's responder: it
    acks each tick and sends one fixed command), at the mode's rate, with the ideal and the crazyflie
-   firmware: the median of FLOOR_RUNS runs before the flights and FLOOR_RUNS after them. Each flight's
+   firmware: the median of FLOOR_RUNS runs before the flights and FLOOR_RUNS after them, each interleaved
+   with a run of the baseline's own floor (its emulator and responder), and each floor's ratio to that one
+   (issue 19: the floor not lower than the baseline's, with the faithful firmware too). Each flight's
    ratio is to the crazyflie firmware's floor (what `cfstack fly` flies) from one floor run just before
    its baseline flight and one just after its new flight: the machine's load drifts within a run.
    Then each flight's ground-station work per tick by part (waiting, codec, estimator, controller,
@@ -61,6 +63,7 @@ FLOOR_SECONDS = 10.0  # simulated seconds per floor run
 TARGET_RTF = {"moments": 5.0, "attitude": 20.0}  # issue 4's lockstep targets, each at its mode's default rate
 FLOOR_SHARE_TARGET = 0.8  # issue 19: each flight at >= 80 % of the floor's real-time factor
 FLOOR_FIRMWARES = ("ideal", "crazyflie")  # the floor with each onboard side (cfstack fly flies crazyflie)
+BASELINE = "baseline"  # the floor key of the baseline revision's own floor
 # The baseline of section 1: the last commit before issue 19's work (--baseline REV to change it)
 BASELINE_REV = "0f6b840"
 HERE = Path(__file__).resolve().parent
@@ -99,26 +102,59 @@ def _floor_run(mode: str, firmware: str) -> dict:
                                     profile=False, firmware=firmware)
 
 
-def floor_runs() -> dict[tuple[str, str], list[dict]]:
-    """FLOOR_RUNS runs of the floor per (mode, firmware)."""
-    return {(mode, firmware): [_floor_run(mode, firmware) for _ in range(FLOOR_RUNS)]
-            for firmware in FLOOR_FIRMWARES for mode in TARGET_RTF}
+# The baseline revision's own floor: its emulator and its responder (its emulator_bench, run from the extracted
+# tree), on its MAVLink radio (named DEFAULT_MAVLINK_RADIO once the half-duplex Crazyradio model took the name
+# "crazyradio"; before that "crazyradio" was the per-direction model, today's esb-duplex), its default firmware.
+BASELINE_FLOOR_SCRIPT = """
+import json, sys
+sys.path.insert(0, "benchmarks")
+import emulator_bench
+from model import radio
+run = emulator_bench.fly_zenoh(getattr(radio, "DEFAULT_MAVLINK_RADIO", "crazyradio"), {seconds!r}, {period_s!r},
+                               True, 0, profile=False)
+print(json.dumps({{"rtf": run["rtf"]}}))
+"""
 
 
-def floors(before: dict, after: dict) -> None:
+def _baseline_floor_run(mode: str, tree: Path) -> dict:
+    """One run of the floor as the baseline revision measured it (issue 19: the floor not lower than then)."""
+    script = BASELINE_FLOOR_SCRIPT.format(seconds=FLOOR_SECONDS, period_s=1.0 / DEFAULT_RATE_HZ[mode])
+    run = subprocess.run([sys.executable, "-c", script], cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)},
+                         capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
+    if run.returncode != 0:
+        raise SystemExit(f"the baseline's floor failed: {run.stderr.strip()[-300:]}")
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def floor_runs(tree: Path) -> dict[tuple[str, str], list[dict]]:
+    """FLOOR_RUNS runs of the floor per (mode, firmware), and of the baseline's own floor (firmware BASELINE),
+    interleaved so that the machine's drift falls on all of them alike."""
+    keys = [(mode, firmware) for mode in TARGET_RTF for firmware in (BASELINE, *FLOOR_FIRMWARES)]
+    runs = {key: [] for key in keys}
+    for _ in range(FLOOR_RUNS):
+        for mode, firmware in keys:
+            runs[mode, firmware].append(_baseline_floor_run(mode, tree) if firmware == BASELINE
+                                        else _floor_run(mode, firmware))
+    return runs
+
+
+def floors(before: dict, after: dict, rev: str) -> None:
     """Print the floor per (mode, firmware): the median of its runs before and after the flights (the
-    machine's load drifts over a run); an overview of the layout (each flight's ratio uses its own floor runs)."""
+    machine's load drifts over a run), and its ratio to the baseline revision's own floor from the same run
+    (issue 19: not lower than the baseline's, with the faithful firmware too); an overview of the layout (each
+    flight's ratio uses its own floor runs)."""
     print(f"   floor: the emulator against a zero-work ground station (emulator_bench responder), median of "
-          f"{FLOOR_RUNS} runs before and {FLOOR_RUNS} after the flights, {FLOOR_SECONDS:g} s simulated each; "
-          f"load average {os.getloadavg()[0]:.1f}")
-    out = {}
-    for key in before:
-        out[key] = statistics.median(run["rtf"] for run in before[key] + after[key])
-        mode, firmware = key
+          f"{FLOOR_RUNS} runs before and {FLOOR_RUNS} after the flights, {FLOOR_SECONDS:g} s simulated each, "
+          f"interleaved with git {rev}'s own floor; load average {os.getloadavg()[0]:.1f}")
+    out = {key: statistics.median(run["rtf"] for run in before[key] + after[key]) for key in before}
+    for (mode, firmware), rtf in out.items():
         period_s = 1.0 / DEFAULT_RATE_HZ[mode]
-        runs = [", ".join(f"{run['rtf']:.1f}x" for run in group) for group in (before[key], after[key])]
-        print(f"   {mode:9} at {DEFAULT_RATE_HZ[mode]:3.0f} Hz, firmware {firmware:9}: floor {out[key]:5.1f}x "
-              f"({period_s / out[key] * 1e6:4.0f} us/tick; runs before {runs[0]}; after {runs[1]})")
+        runs = [", ".join(f"{run['rtf']:.1f}x" for run in group)
+                for group in (before[mode, firmware], after[mode, firmware])]
+        name = f"git {rev}" if firmware == BASELINE else f"firmware {firmware}"
+        versus = "" if firmware == BASELINE else f", {rtf / out[mode, BASELINE]:.2f} of git {rev}'s"
+        print(f"   {mode:9} at {DEFAULT_RATE_HZ[mode]:3.0f} Hz, {name:18}: floor {rtf:5.1f}x "
+              f"({period_s / rtf * 1e6:4.0f} us/tick{versus}; runs before {runs[0]}; after {runs[1]})")
 
 
 def _responder_critical_us(responder: dict) -> float:
@@ -148,7 +184,7 @@ def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
     elif not quick:
         print(f"   (maze flights skipped: {SHARED_WORLDS} is absent)")
     results, around = {}, {}
-    before = floor_runs()
+    before = floor_runs(tree)
     for name, args in flights:
         for mode in TARGET_RTF:
             # each flight pair is compared with floor runs flown just before and just after it, under the same load
@@ -158,7 +194,7 @@ def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
                 results[name, mode, label] = fly_timed([*args, "--mode", mode], log, source)
                 print(f"   flew {name}, {mode}, {label}", file=sys.stderr, flush=True)  # progress
             around[name, mode].append(_floor_run(mode, "crazyflie"))
-    floors(before, floor_runs())
+    floors(before, floor_runs(tree), rev)
     floor = {key: statistics.median(run["rtf"] for run in runs) for key, runs in around.items()}
     floor_critical = {key: statistics.median(_responder_critical_us(run["responder"]) for run in runs)
                       for key, runs in around.items()}
