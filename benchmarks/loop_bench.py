@@ -131,10 +131,11 @@ def floor_runs(tree: Path) -> dict[tuple[str, str], list[dict]]:
     interleaved so that the machine's drift falls on all of them alike."""
     keys = [(mode, firmware) for mode in TARGET_RTF for firmware in (BASELINE, *FLOOR_FIRMWARES)]
     runs = {key: [] for key in keys}
-    for _ in range(FLOOR_RUNS):
+    for i in range(FLOOR_RUNS):
         for mode, firmware in keys:
             runs[mode, firmware].append(_baseline_floor_run(mode, tree) if firmware == BASELINE
                                         else _floor_run(mode, firmware))
+        print(f"   floor runs {i + 1}/{FLOOR_RUNS}", file=sys.stderr, flush=True)  # progress
     return runs
 
 
