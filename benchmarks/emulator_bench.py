@@ -8,7 +8,8 @@ Gives out (printed), in one run:
      real-time factor and us per physics step, and where a step goes;
   2. the same with --vehicles vehicles;
   3. over zenoh (loopback TCP) in lockstep against a minimal scripted responder in a child process
-     (joins, waits for each tick's announced frames, sends one ThrustMoment, acks): 500 Hz and 100 Hz
+     (joins, waits for each tick's announced frames, sends one ThrustMoment, acks; loop_bench also has it fly
+     a mode's own command, airborne: FLOWN): 500 Hz and 100 Hz
      control ticks, lookahead on and off (baseline = off, candidate = on, ratio printed), best of
      --repeats; then where a tick's time goes (emulator: vehicle, radio, encode/decode, routing,
      transport send / poll / wait; responder: waiting for the tick, for its frames, its own work).
@@ -35,14 +36,15 @@ import time
 from collections import deque
 from pathlib import Path
 
+from groundstation.controller import load_gains
 from link.clock import NS_PER_S, ClockAck, unpack_tick
 from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
-from link.mavlink.codec import ActuatorLimits, Codec
-from link.messages import CommandKind, ThrustMoment, VehicleCommand
+from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
+from link.messages import AttitudeTarget, CommandKind, ExternalPose, MocapPose, ThrustMoment, VehicleCommand
 from link.transports import open_transport
 from link.transports.base import free_loopback_port
 from model.radio import load_radio_profile
-from model.vehicle import FIRMWARE_VEHICLES, load_mocap_room, load_vehicle
+from model.vehicle import FIRMWARE_VEHICLES, GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
 
 PHYSICS_RATE_HZ = 1000.0
@@ -51,9 +53,17 @@ HOVER_HEIGHT_M = 1.0
 TARGET_INPROCESS_RTF = 20.0
 TARGET_ZENOH_RTF = {500.0: 5.0, 100.0: 20.0}
 PREFIX = "cfbench"
+MOCAP_SOURCE = 1  # the responder's sources: downlink, mocap, truth
 VEHICLE_PARTS = ("uplink", "firmware", "sensors", "physics", "outputs")
 EMULATOR_PARTS = ("radio", "encode", "decode", "route")
 TRANSPORT_PARTS = ("send", "poll", "wait")
+# What the responder flies: FIXED sends one ThrustMoment(weight) per tick, whatever the rate (the floor as
+# issue 19 was filed); a mode's name sends that mode's own command, as `cfstack fly --mode M` does, holds the
+# height on the mocap poses and, with the faithful firmware, forwards each pose (cfstack fly's default
+# --extpose), so that the emulator does a flight's work: its onboard loops of that mode, airborne.
+FIXED = "fixed"
+FLOWN = (FIXED, "moments", "attitude")
+LEVEL_WXYZ = (1.0, 0.0, 0.0, 0.0)
 
 
 def make_config(radio: str, vehicles: int, seed: int, **changes) -> EmulatorConfig:
@@ -126,15 +136,17 @@ def cpu_s() -> float:
 
 
 def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed: int, profile: bool,
-              firmware: str = "ideal") -> dict:
-    """The emulator here (listening), the responder as a child process; wall time from tick 0."""
+              firmware: str = "ideal", flown: str = FIXED) -> dict:
+    """The emulator here (listening), the responder as a child process; wall time from tick 0. `flown`: what
+    the responder sends (FLOWN)."""
     endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
     config = make_config(radio, 1, seed, lookahead=lookahead, profile=profile, duration_s=seconds,
                          zenoh_options={"listen": [endpoint]}, firmware=firmware)
     emulator = Emulator(config)
     with emulator:
         child = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--responder", endpoint,
-                                  repr(period_s), repr(seconds), FIRMWARE_VEHICLES[firmware]],
+                                  repr(period_s), repr(seconds), FIRMWARE_VEHICLES[firmware], flown,
+                                  "extpose" if firmware == "crazyflie" else "no-extpose"],
                                  stdout=subprocess.PIPE, text=True)
         ready = child.stdout.readline()  # its transports are matched with ours: it joins right away
         if ready.strip() != "ready":
@@ -147,10 +159,12 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
         out, _ = child.communicate(timeout=120)
     responder = json.loads(out.strip().splitlines()[-1])
     ticks = emulator.tick + 1
+    sim = emulator.nodes[0].sim
     return {"rtf": emulator.tick_time_s / wall, "wall_s": wall, "ticks": ticks, "us_per_tick": wall / ticks * 1e6,
             "lookahead_steps": emulator.lockstep.lookahead_steps, "timing": emulator.timing_report(),
             "responder": responder, "cpu_us_per_tick": cpu / ticks * 1e6,
-            "main_cpu_us_per_tick": main_cpu / ticks * 1e6}
+            "main_cpu_us_per_tick": main_cpu / ticks * 1e6,
+            "airborne_at_end": sim.crash is None and not sim.dynamics.on_ground}
 
 
 def report_zenoh(radio: str, seconds: float, repeats: int, seed: int) -> None:
@@ -209,16 +223,40 @@ def report_tick_split(run: dict) -> None:
 
 # --- the responder child ------------------------------------------------------------------------------
 
-def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str = "crazyflie") -> None:
+class HeightHold:
+    """The responder's collective thrust holding HOVER_HEIGHT_M on the mocap poses:
+    T = m (g + kp_z (z_ref - z) - kd_z v_z), v_z from the last two poses, kp_z and kd_z the lab report's
+    (groundstation/params/gains.toml), clipped to the vehicle's thrust range. It keeps the faithful
+    firmware's vehicle airborne, whose own draw and battery sag make a fixed thrust sink to the floor."""
+
+    def __init__(self, vehicle) -> None:
+        gains = load_gains()
+        self.mass_kg, self.max_thrust_n = vehicle.mass_kg, vehicle.max_thrust_n
+        self.kp, self.kd = gains.kp[2], gains.kd[2]
+        self.thrust_n = vehicle.weight_n
+        self._last: tuple[float, float] | None = None  # (time s, z m) of the last pose
+
+    def see(self, pose: MocapPose) -> None:
+        t, z = pose.time_s, pose.position_enu_m[2]
+        vz = 0.0 if self._last is None or t <= self._last[0] else (z - self._last[1]) / (t - self._last[0])
+        self._last = (t, z)
+        accel = GRAVITY_MPS2 + self.kp * (HOVER_HEIGHT_M - z) - self.kd * vz
+        self.thrust_n = min(max(self.mass_kg * accel, 0.0), self.max_thrust_n)
+
+
+def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str = "crazyflie", flown: str = FIXED,
+              extpose: str = "no-extpose") -> None:
     """Join vehicle 1's lockstep; per tick: wait for the announced frames (blocking on the key still
-    short), send ARM (first tick) and a hover ThrustMoment (the weight of the emulated vehicle, so it
-    hovers rather than falls), ack with wake-up = tick + period. Its acks
-    carry the period as a standing order (ClockAck.period_ns), as the ground station's do, so the
-    emulator may publish a tick before the last one's ack when its lookahead covers a whole tick."""
+    short), send ARM (first tick) and the command `flown` says (FLOWN: a hover ThrustMoment of the emulated
+    vehicle's weight, or a mode's own command on the height hold, each pose forwarded with "extpose"), ack
+    with wake-up = tick + period. Its acks carry the period as a standing order (ClockAck.period_ns), as
+    the ground station's do, so the emulator may publish a tick before the last one's ack when its
+    lookahead covers a whole tick."""
     opts = {"connect": [endpoint], "listen": []}
     keys = VehicleKeys(PREFIX, 1)
     vehicle = load_vehicle(vehicle_name)
     codec = Codec(GROUND_STATION_SYSTEM_ID, limits=ActuatorLimits.from_vehicle(vehicle))
+    commands = FlownCommands(vehicle, flown, extpose == "extpose", codec)
     sources = [open_transport("zenoh", rx=keys.downlink, **opts), open_transport("zenoh", rx=keys.mocap, **opts),
                open_transport("zenoh", rx=keys.truth, **opts)]
     uplink = open_transport("zenoh", tx=keys.uplink, **opts)
@@ -246,18 +284,25 @@ def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str 
         want = (tick.downlink_published, tick.mocap_published, tick.truth_published)
         while True:
             for i, source in enumerate(sources):
-                counts[i] += len(source.receive(0.0))
+                got = source.receive(0.0)
+                counts[i] += len(got)
+                if i == MOCAP_SOURCE:
+                    commands.take_mocap(got)
             short = next((i for i in range(3) if counts[i] < want[i]), None)
             if short is None:
                 break
-            counts[short] += len(sources[short].receive(0.005))
+            got = sources[short].receive(0.005)
+            counts[short] += len(got)
+            if short == MOCAP_SOURCE:
+                commands.take_mocap(got)
         t2 = perf()
         if tick.tick == 0:
             uplink.send(codec.encode(VehicleCommand(tick.time_s, CommandKind.ARM), 1))
             cpu0 = cpu_s()
             usage = resource.getrusage(resource.RUSAGE_SELF)
             switches0 = usage.ru_nvcsw + usage.ru_nivcsw
-        uplink.send(codec.encode(ThrustMoment(tick.time_s, vehicle.weight_n, (0.0, 0.0, 0.0)), 1))
+        for message in commands.tick(tick.time_s):
+            uplink.send(codec.encode(message, 1))
         last = tick.tick
         done = tick.time_s >= seconds - 1e-9
         clock.send(ClockAck(tick.tick, uplink.stats.frames_sent, 0 if done else tick.time_ns + period_ns,
@@ -277,9 +322,43 @@ def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str 
         transport.close()
 
 
+class FlownCommands:
+    """What the responder sends each tick (FLOWN): FIXED, the weight as a ThrustMoment; a mode's name, that
+    mode's command on the height hold, after each of the tick's poses forwarded as ExternalPose when
+    `forward_poses` (as the ground station's tick sends them)."""
+
+    def __init__(self, vehicle, flown: str, forward_poses: bool, codec: Codec) -> None:
+        self.vehicle, self.flown, self.forward_poses = vehicle, flown, forward_poses
+        self.hold = None if flown == FIXED else HeightHold(vehicle)
+        self._parser = FrameParser(codec)
+        self._mocap: list = []  # the tick's mocap samples, when the height is held
+
+    def take_mocap(self, samples: list) -> None:
+        if self.hold is not None:
+            self._mocap.extend(samples)
+
+    def tick(self, t: float) -> list:
+        """The messages to send at tick time t, in order."""
+        if self.hold is None:
+            return [ThrustMoment(t, self.vehicle.weight_n, (0.0, 0.0, 0.0))]
+        out = []
+        for sample in self._mocap:
+            for decoded in self._parser.feed(sample, True):
+                pose = decoded.message
+                if isinstance(pose, MocapPose):
+                    self.hold.see(pose)
+                    if self.forward_poses:
+                        out.append(ExternalPose(pose.time_s, pose.position_enu_m, pose.attitude_wxyz))
+        self._mocap.clear()
+        thrust_n = self.hold.thrust_n
+        out.append(ThrustMoment(t, thrust_n, (0.0, 0.0, 0.0)) if self.flown == "moments"
+                   else AttitudeTarget(t, thrust_n, LEVEL_WXYZ))
+        return out
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--responder":
-        responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:6])
+        responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:8])
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0,

@@ -10,8 +10,9 @@ Gives out (printed):
    test_lab_1 maze from ../shared/worlds when present): real-time factor of the flight loop per mode and
    firmware, and the ratio. Issue 15's floor: moments mode at 500 Hz at least 5x real time with the faithful firmware.
 
-The setpoints come from the truth (a stand-in for the ground station: this measures the vehicle, not a
-controller). Run: python benchmarks/firmware_bench.py [--seconds 10] [--repeats 3] [--skip-flights]
+The setpoints come from the truth, the thrust holding the height on it (emulator_bench.HeightHold), a
+stand-in for the ground station: this measures the vehicle, airborne throughout, not a controller.
+Run: python benchmarks/firmware_bench.py [--seconds 10] [--repeats 3] [--skip-flights]
 """
 
 from __future__ import annotations
@@ -27,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 from bench_paths import SHARED_WORLDS
+from emulator_bench import LEVEL_WXYZ, HeightHold
 
-from link.messages import AttitudeTarget, ExternalPose, ThrustMoment
+from link.messages import AttitudeTarget, ExternalPose, MocapPose, ThrustMoment
 from model.vehicle import load_mocap_room, load_vehicle
 from simulator.vehicle_sim import SimVehicle
 
@@ -44,18 +46,19 @@ def hover_in_process(firmware: str, mode: str, seconds: float, seed: int) -> flo
     sim = SimVehicle(vehicle, np.random.default_rng(seed), mocap_room=load_mocap_room("vicon"),
                      initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True, firmware=firmware)
     steps_per_setpoint = 2 if mode == "moments" else 10
-    level = (1.0, 0.0, 0.0, 0.0)
+    hold = HeightHold(vehicle)  # a fixed thrust would let the faithful vehicle sink to the floor mid-run
     total_steps = round(seconds * 1000.0)
     start = time.perf_counter()
     for k in range(total_steps):
         if k % steps_per_setpoint == 0:
             t = sim.t_s
+            truth = sim.truth
+            hold.see(MocapPose(t, 1, truth.position_enu_m, truth.attitude_wxyz))
             if mode == "moments":
-                sim.handle_uplink(ThrustMoment(t, vehicle.weight_n, (0.0, 0.0, 0.0)), t)
+                sim.handle_uplink(ThrustMoment(t, hold.thrust_n, (0.0, 0.0, 0.0)), t)
             else:
-                truth = sim.truth
                 sim.handle_uplink(ExternalPose(t, truth.position_enu_m, truth.attitude_wxyz), t)
-                sim.handle_uplink(AttitudeTarget(t, vehicle.weight_n, level), t)
+                sim.handle_uplink(AttitudeTarget(t, hold.thrust_n, LEVEL_WXYZ), t)
         sim.step()
         sim.pop_outputs()
     return (time.perf_counter() - start) / total_steps * 1e6

@@ -10,8 +10,11 @@ Prints, from one run:
    firmware: the median of FLOOR_RUNS runs before the flights and FLOOR_RUNS after them, each interleaved
    with a run of the baseline's own floor (its emulator and responder), and each floor's ratio to that one
    (issue 19: the floor not lower than the baseline's, with the faithful firmware too). Each flight's
-   ratio is to the crazyflie firmware's floor (what `cfstack fly` flies) from one floor run just before
-   its baseline flight and one just after its new flight: the machine's load drifts within a run.
+   ratio is to the crazyflie firmware's floor (what `cfstack fly` flies) from floor runs just before
+   its baseline flight and just after its new flight (the machine's load drifts within a run), flown two
+   ways: as filed (one ThrustMoment(weight) per tick in both modes; the faithful vehicle sinks to the floor
+   within the run) and matched (the flight's own mode and command, the height held on mocap, each pose
+   forwarded as cfstack fly's --extpose does: the emulator does the flight's onboard work, airborne).
    Then each flight's ground-station work per tick by part (waiting, codec, estimator, controller,
    mission, logging; flight_parts.py), baseline -> new; and its critical path per tick (tick record
    taken -> ack sent, from the flight's summary), with what that predicts for its share of the floor and
@@ -64,6 +67,7 @@ TARGET_RTF = {"moments": 5.0, "attitude": 20.0}  # issue 4's lockstep targets, e
 FLOOR_SHARE_TARGET = 0.8  # issue 19: each flight at >= 80 % of the floor's real-time factor
 FLOOR_FIRMWARES = ("ideal", "crazyflie")  # the floor with each onboard side (cfstack fly flies crazyflie)
 BASELINE = "baseline"  # the floor key of the baseline revision's own floor
+FILED, MATCHED = "as filed", "matched"  # each flight's floor: the responder as filed, and flown as the flight
 # The baseline of section 1: the last commit before issue 19's work (--baseline REV to change it)
 BASELINE_REV = "0f6b840"
 HERE = Path(__file__).resolve().parent
@@ -95,11 +99,12 @@ def fly_timed(args: list[str], log: Path, tree: Path | None) -> tuple[dict, dict
     return plain, json.loads(out.read_text())
 
 
-def _floor_run(mode: str, firmware: str) -> dict:
+def _floor_run(mode: str, firmware: str, flown: str = emulator_bench.FIXED) -> dict:
     """One run of the layout's floor: the emulator against a ground station that does no work
-    (emulator_bench's responder), at the mode's rate, FLOOR_SECONDS simulated."""
+    (emulator_bench's responder), at the mode's rate, FLOOR_SECONDS simulated; `flown`: what the responder
+    sends (emulator_bench.FLOWN: FIXED as the issue was filed, or the mode's own command, airborne)."""
     return emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, FLOOR_SECONDS, 1.0 / DEFAULT_RATE_HZ[mode], True, 0,
-                                    profile=False, firmware=firmware)
+                                    profile=False, firmware=firmware, flown=flown)
 
 
 # The baseline revision's own floor: its emulator and its responder (its emulator_bench, run from the extracted
@@ -189,28 +194,37 @@ def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
     for name, args in flights:
         for mode in TARGET_RTF:
             # each flight pair is compared with floor runs flown just before and just after it, under the same load
-            around[name, mode] = [_floor_run(mode, "crazyflie")]
+            around[name, mode] = _flight_floor_runs(mode)
             for label, source in (("baseline", tree), ("new", None)):
                 log = tmp / f"{name.replace(' ', '_')}_{mode}_{label}"
                 results[name, mode, label] = fly_timed([*args, "--mode", mode], log, source)
                 print(f"   flew {name}, {mode}, {label}", file=sys.stderr, flush=True)  # progress
-            around[name, mode].append(_floor_run(mode, "crazyflie"))
+            for flown, runs in _flight_floor_runs(mode).items():
+                around[name, mode][flown] += runs
     floors(before, floor_runs(tree), rev)
-    floor = {key: statistics.median(run["rtf"] for run in runs) for key, runs in around.items()}
-    floor_critical = {key: statistics.median(_responder_critical_us(run["responder"]) for run in runs)
-                      for key, runs in around.items()}
-    print("\n   floor (crazyflie firmware) for each flight: the mean of a floor run just before the baseline's flight "
-          "and one just after the new one")
-    print(f"\n{'flight':18} {'mode':9} {'RTF base':>8} {'RTF new':>8} {'new/base':>8} {'floor':>6} "
-          f"{'base/floor':>10} {'new/floor':>9} {'result':>13} {'target':>7}")
+    floor = {(key, flown): statistics.median(run["rtf"] for run in runs)
+             for key, by_flown in around.items() for flown, runs in by_flown.items()}
+    floor_critical = {key: statistics.median(_responder_critical_us(run["responder"]) for run in by_flown[MATCHED])
+                      for key, by_flown in around.items()}
+    grounded = sorted({f"{name} {mode} ({flown})" for (name, mode), by_flown in around.items()
+                       for flown, runs in by_flown.items() for run in runs if not run["airborne_at_end"]})
+    print("\n   floor (crazyflie firmware) for each flight: the median of floor runs just before the baseline's flight "
+          "and just after the new one, flown two ways:\n   'as filed' = one ThrustMoment(weight) per tick in either "
+          "mode (issue 19's floor when it was filed); 'matched' = the\n   flight's own mode and command, the height "
+          "held on mocap, each pose forwarded (cfstack fly's --extpose): the\n   emulator then does the flight's "
+          "onboard work, airborne")
+    if grounded:
+        print(f"   floor runs that ended on the floor (less physics per step than a flight): {', '.join(grounded)}")
+    print(f"\n{'flight':18} {'mode':9} {'RTF base':>8} {'RTF new':>8} {'new/base':>8} {'floor':>6} {'new/floor':>9} "
+          f"{'target':>6} {'matched':>7} {'new/matched':>11} {'target':>6} {'result':>13}")
     for name, _ in flights:
         for mode in TARGET_RTF:
             (base, _), (new, _) = results[name, mode, "baseline"], results[name, mode, "new"]
             rb, rn = base["timing"]["real_time_factor"], new["timing"]["real_time_factor"]
-            f = floor[name, mode]
-            verdict = "PASS" if rn / f >= FLOOR_SHARE_TARGET else "MISS"
-            print(f"{name:18} {mode:9} {rb:8.1f} {rn:8.1f} {rn / rb:8.2f} {f:6.1f} {rb / f:10.0%} {rn / f:9.0%} "
-                  f"{new['result']:>13} {verdict:>7}")
+            filed, matched = floor[(name, mode), FILED], floor[(name, mode), MATCHED]
+            verdicts = ["PASS" if rn / f >= FLOOR_SHARE_TARGET else "MISS" for f in (filed, matched)]
+            print(f"{name:18} {mode:9} {rb:8.1f} {rn:8.1f} {rn / rb:8.2f} {filed:6.1f} {rn / filed:9.0%} "
+                  f"{verdicts[0]:>6} {matched:7.1f} {rn / matched:11.0%} {verdicts[1]:>6} {new['result']:>13}")
     print("\n   per-component us per tick (exclusive; 'other' = loop wall - parts), baseline -> new")
     print(f"{'flight':18} {'mode':9} " + " ".join(f"{p:>15}" for p in (*PART_NAMES, "other", "loop")))
     for name, _ in flights:
@@ -220,7 +234,12 @@ def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
             for part in (*PART_NAMES, "other", "loop"):
                 cells.append(f"{per_tick[0][part]:6.0f} -> {per_tick[1][part]:5.0f}")
             print(f"{name:18} {mode:9} " + " ".join(f"{c:>15}" for c in cells))
-    critical_path_table(flights, results, floor, floor_critical)
+    critical_path_table(flights, results, {key: floor[key, MATCHED] for key in around}, floor_critical)
+
+
+def _flight_floor_runs(mode: str) -> dict[str, list[dict]]:
+    """One floor run of the crazyflie firmware each way (FILED, MATCHED) at the mode's rate."""
+    return {FILED: [_floor_run(mode, "crazyflie")], MATCHED: [_floor_run(mode, "crazyflie", flown=mode)]}
 
 
 def critical_path_table(flights, results, floor, floor_critical) -> None:
@@ -228,11 +247,11 @@ def critical_path_table(flights, results, floor, floor_critical) -> None:
 
     The emulator may not step past the tick after next before a tick's ack (the lookahead's horizon), so
     n ticks (overlapped_ticks) cost P + C of wall time, where C - the emulator's own step and the two
-    zenoh hops - is read off the floor: C = n x floor period - P_floor. Hence a flight at its floor's
-    share (P_floor + C) / (P + C), and 80 % needs P <= (P_floor + C) / 0.8 - C."""
+    zenoh hops - is read off the floor flown as the flight flies (MATCHED): C = n x floor period - P_floor.
+    Hence a flight at its floor's share (P_floor + C) / (P + C), and 80 % needs P <= (P_floor + C) / 0.8 - C."""
     print("\n   critical path per tick (tick record taken -> ack sent, mean us; the rest of a tick overlaps the "
           "emulator):\n   n ticks cost P + C, C = n x floor period - P_floor (the emulator's step and two zenoh "
-          "hops); share of floor predicted (P_floor + C) / (P + C)")
+          "hops; the matched floor's);\n   share of the matched floor predicted (P_floor + C) / (P + C)")
     print(f"{'flight':18} {'mode':9} {'n':>2} {'P base':>7} {'P new':>6} {'P floor':>7} {'C':>6} "
           f"{'predicted':>9} {'measured':>8} {'P for 80%':>9}")
     horizon_s = Emulator(emulator_bench.make_config(DEFAULT_MAVLINK_RADIO, 1, 0)).lockstep.lookahead_horizon_s()
