@@ -139,6 +139,8 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
               firmware: str = "ideal", flown: str = FIXED) -> dict:
     """The emulator here (listening), the responder as a child process; wall time from tick 0. `flown`: what
     the responder sends (FLOWN)."""
+    if flown not in FLOWN:
+        raise ValueError(f"flown: {flown!r} is not one of {', '.join(FLOWN)}")
     endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
     config = make_config(radio, 1, seed, lookahead=lookahead, profile=profile, duration_s=seconds,
                          zenoh_options={"listen": [endpoint]}, firmware=firmware)
