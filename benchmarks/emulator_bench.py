@@ -332,7 +332,7 @@ class FlownCommands:
     def __init__(self, vehicle, flown: str, forward_poses: bool, codec: Codec) -> None:
         self.vehicle, self.flown, self.forward_poses = vehicle, flown, forward_poses
         self.hold = None if flown == FIXED else HeightHold(vehicle)
-        self._parser = FrameParser(codec)
+        self._parser = None if self.hold is None else FrameParser(codec)  # the poses, read only to hold the height
         self._mocap: list = []  # the tick's mocap samples, when the height is held
 
     def take_mocap(self, samples: list) -> None:
