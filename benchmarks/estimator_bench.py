@@ -25,6 +25,7 @@ Run: python benchmarks/estimator_bench.py [--seconds 6] [--repeats 5] [--baselin
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import inspect
 import statistics
@@ -42,6 +43,8 @@ sys.path.insert(0, str(ROOT / "tests" / "estimator"))
 from git_baseline import baseline_modules  # noqa: E402 (benchmarks/, beside this script)
 from synthetic import Flight, LinkFaults, simulate  # noqa: E402
 
+import estimator.eskf as eskf  # noqa: E402
+from estimator import eskf_kernels  # noqa: E402
 from estimator.eskf import ErrorStateKF  # noqa: E402
 from estimator.sensor_spec import SensorSpec  # noqa: E402
 from link.messages import ImuSample  # noqa: E402
@@ -61,15 +64,20 @@ COLUMNS = (*CALLS, "tick", BUILD)
 
 
 # the baseline's eskf.py and the modules it imports that have since moved (they come from the same commit)
-BASELINE_MODULES = {"eskf": "estimator/eskf.py", "rotation": "estimator/rotation.py",
+BASELINE_MODULES = {"eskf": "estimator/eskf.py", "eskf_kernels": "estimator/eskf_kernels.py",
+                    "rotation": "estimator/rotation.py",
                     "link_rotation": "link/rotation.py", "config": "link/config.py", "errors": "link/errors.py",
                     "vehicle": "link/vehicle.py"}
 
 
 def load_baseline(commit: str, workdir: Path) -> type | None:
-    """ErrorStateKF of estimator/eskf.py at `commit`, or None (with the reason printed) without git."""
+    """ErrorStateKF of estimator/eskf.py at `commit`, or None (with the reason printed) without git. Of
+    BASELINE_MODULES, those the commit has; the rest come from the working tree."""
     try:
-        return baseline_modules(commit, BASELINE_MODULES, workdir)["eskf"].ErrorStateKF
+        held = {name: path for name, path in BASELINE_MODULES.items()
+                if subprocess.run(["git", "cat-file", "-e", f"{commit}:{path}"], cwd=ROOT,
+                                  capture_output=True).returncode == 0}
+        return baseline_modules(commit, held, workdir)["eskf"].ErrorStateKF
     except (OSError, subprocess.CalledProcessError) as err:
         print(f"baseline {commit[:9]} not readable with git ({err}): candidate only")
         return None
@@ -125,10 +133,26 @@ def fly_ticks(kf, events: list, tick_s: float, overhead_ns: float) -> tuple[dict
     return per_call, kf.estimate()
 
 
+@contextlib.contextmanager
+def propagation(kernel):
+    """The working tree's filter with `kernel` as its per-sample propagation (eskf_kernels: compiled or
+    Python twin), for the calls inside the block."""
+    saved, eskf.propagate = eskf.propagate, kernel
+    try:
+        yield
+    finally:
+        eskf.propagate = saved
+
+
 def difference_in_sigma(a, b) -> float:
     """Largest |a - b| of position and velocity over b's own standard deviations."""
     diffs = np.concatenate([a.position_enu_m - b.position_enu_m, a.velocity_enu_mps - b.velocity_enu_mps])
     return float(np.max(np.abs(diffs) / b.std_dev[0:6]))
+
+
+def _estimate_bytes(e) -> bytes:
+    return b"".join(np.asarray(v).tobytes() for v in (e.time_s, e.position_enu_m, e.velocity_enu_mps,
+                                                      e.attitude_wxyz, e.covariance))
 
 
 def build_filter(cls, vehicle, room):
@@ -148,11 +172,17 @@ def main(argv: list[str] | None = None) -> None:
     vehicle, room = load_vehicle("crazyflie"), load_mocap_room("vicon")
     scratch = tempfile.TemporaryDirectory()  # the baseline's sources, for as long as the run lasts
     baseline = load_baseline(args.baseline_commit, Path(scratch.name))
-    filters = {"candidate": ErrorStateKF} | ({"baseline": baseline} if baseline else {})
+    # candidate: as the ground station runs it (the compiled propagation when it was built); py twin: the
+    # same filter on estimator/eskf_kernels.py's Python propagation, i.e. what the compiled kernel saves
+    filters = {"candidate": (ErrorStateKF, eskf_kernels.propagate),
+               "py twin": (ErrorStateKF, eskf_kernels.propagate_python)}
+    if baseline:
+        filters["baseline"] = (baseline, None)
     overhead_ns = clock_overhead_ns()
     print(f"estimator bench: {args.seconds:.0f} s synthetic 1 m/s circle per case, IMU {vehicle.imu.rate_hz:.0f} Hz, "
           f"mocap {room.rate_hz:.0f} Hz; median of {args.repeats} interleaved runs, thread CPU us per call "
-          f"(clock overhead {1e-3 * overhead_ns:.2f} us subtracted; baseline = {args.baseline_commit[:9]})")
+          f"(clock overhead {1e-3 * overhead_ns:.2f} us subtracted; baseline = {args.baseline_commit[:9]}; "
+          f"candidate propagation: {'compiled' if eskf_kernels.COMPILED else 'Python twin (not built)'})")
     header = f"{'mode / case':40s} {'filter':10s}" + "".join(f"{k:>11s}" for k in COLUMNS)
     print(header)
     flights = {label: simulate(Flight(duration_s=args.seconds), vehicle.imu, room, np.random.default_rng(7), faults)
@@ -163,14 +193,15 @@ def main(argv: list[str] | None = None) -> None:
             results: dict[str, list[dict[str, float]]] = {name: [] for name in filters}
             finals = {}
             for _ in range(args.repeats):
-                for name, cls in filters.items():
+                for name, (cls, kernel) in filters.items():
                     gc.collect()
-                    per_call, finals[name] = fly_ticks(build_filter(cls, vehicle, room), run.events, tick_s,
-                                                       overhead_ns)
+                    with propagation(kernel) if kernel is not None else contextlib.nullcontext():
+                        per_call, finals[name] = fly_ticks(build_filter(cls, vehicle, room), run.events, tick_s,
+                                                           overhead_ns)
                     results[name].append(per_call)
             medians = {name: {k: statistics.median(r[k] for r in runs) for k in COLUMNS}
                        for name, runs in results.items()}
-            for name in ("baseline", "candidate"):
+            for name in ("baseline", "py twin", "candidate"):
                 if name in medians:
                     print(f"{mode + ', ' + label:40s} {name:10s}"
                           + "".join(f"{medians[name][k]:11.1f}" for k in COLUMNS))
@@ -181,6 +212,10 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{'':40s} {'speed-up':10s}{ratio}   CPU per simulated s {per_sim_s['baseline']:.1f} -> "
                       f"{per_sim_s['candidate']:.1f} ms; final estimates differ by "
                       f"{difference_in_sigma(finals['candidate'], finals['baseline']):.1e} sigma")
+            twin = "".join(f"{medians['py twin'][k] / medians['candidate'][k]:10.2f}x" for k in COLUMNS)
+            same = "the same bits" if _estimate_bytes(finals["py twin"]) == _estimate_bytes(finals["candidate"]) \
+                else "DIFFERENT bits"
+            print(f"{'':40s} {'py/cand':10s}{twin}   final estimates of the two propagations: {same}")
 
 
 if __name__ == "__main__":

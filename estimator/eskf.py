@@ -23,16 +23,18 @@ Process noise from the continuous densities (s_a, s_g, s_ba, s_bg) of the sensor
 Mocap measurement: z = [p_m - p ; Log(q^* (x) q_m)] = H dx + n, H = [I 0 0 0 0; 0 0 I 0 0],
     R = diag(s_p^2 I3, s_theta^2 I3) of the sensor spec (times noise.mocap_noise_variance_scale).
 
-What filterpy does (one filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state):
-predict() (F and Q set on it) computes x = F x and P = F P F' + Q; update(z, H=H) computes y = z - H x,
-S = H P H' + R, S^-1 (its `inv` hook, set here to LAPACK gesv: numpy.linalg.inv runs the same routine
-behind ~7 us of argument checks), K = P H' S^-1, x = x + K y and the Joseph form
-P = (I - K H) P (I - K H)' + K R K'. What this module does around it: the nominal propagation above
-(plain floats), building F each interval (the identity plus one numpy put of its 48 other entries) and
-Q (depends on dt alone: cached per interval length), forming z from the nominal state, the Mahalanobis gate
-d^2 = y' S^-1 y on filterpy's y and S^-1 (a rejected frame keeps the prior P: the update is discarded),
-injecting dx into the nominal state (q <- q (x) Exp(dtheta)), the ESKF reset P <- G P G' with
-G_theta = I - [dtheta/2]x (Sola eq. 287), setting x back to 0, and the time bookkeeping below.
+The Kalman steps are filterpy's (filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state),
+made by filterpy's own numpy calls in filterpy's order without the copies it keeps for its callers, so with
+its bits (tests/estimator/test_eskf_kernels.py checks them against filterpy): predict P = F P F' + Q;
+update y = z - H x, S = H P H' + R, S^-1 (LAPACK gesv: numpy.linalg.inv runs the same routine behind ~7 us
+of argument checks), K = P H' S^-1, x = x + K y and the Joseph form P = (I - K H) P (I - K H)' + K R K'.
+What this module does around them: the nominal propagation above and F (the identity, its 48 other entries
+written by estimator.eskf_kernels.propagate, compiled when it was built, else its Python twin: the same
+bits), Q (depends on dt alone: cached per interval length), forming z from the nominal state, the
+Mahalanobis gate d^2 = y' S^-1 y on the update's y and S^-1 (a rejected frame keeps the prior P: the
+update is discarded), injecting dx into the nominal state (q <- q (x) Exp(dtheta)), the ESKF reset
+P <- G P G' with G_theta = I - [dtheta/2]x (Sola eq. 287), the error state back to 0, and the time
+bookkeeping below.
 
 Time bookkeeping (latency compensation). Every sample is a node on a timeline sorted by sample time,
 holding the nominal state and P just after it; the last `buffer.length_s` seconds are kept. A mocap
@@ -75,11 +77,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 from filterpy.kalman import predict as filterpy_predict
 from scipy.linalg.lapack import dgesv as lapack_gesv
 from scipy.stats import chi2
 
+from estimator.eskf_kernels import TRANSITION_ENTRIES, propagate
 from estimator.sensor_spec import SensorSpec
 from link.messages import ImuSample, MocapPose
 from model.config import Params, resolve
@@ -89,8 +91,6 @@ from model.frames import (
     quat_exp,
     quat_multiply,
     quat_normalize_positive_w,
-    quat_to_rows,
-    rotate,
 )
 from model.vehicle import GRAVITY_MPS2
 
@@ -109,13 +109,15 @@ _IDENTITY_MOCAP = np.eye(N_MOCAP)  # right-hand side of the gesv inverse (never 
 
 
 def _flat(cells) -> np.ndarray:
-    return np.array([r * N_ERROR + c for r, c in cells])
+    return np.array([r * N_ERROR + c for r, c in cells], dtype=np.int64)
 
 
-# Flat indices of the entries of F other than its unit diagonal, in _transition's order: dp <- dv, the 6x6
-# block of rows dp, dv by columns dtheta, db_a, dtheta <- dtheta off the diagonal, dtheta <- db_g.
+# Flat indices of the entries of F other than its unit diagonal, in eskf_kernels.transition_values' order:
+# dp <- dv, the 6x6 block of rows dp, dv by columns dtheta, db_a, dtheta <- dtheta off the diagonal,
+# dtheta <- db_g.
 _F_INDEX = _flat([(i, 3 + i) for i in range(3)] + [(r, c) for r in range(6) for c in range(6, 12)]
                  + [(6, 7), (6, 8), (7, 6), (7, 8), (8, 6), (8, 7)] + [(6 + i, 12 + i) for i in range(3)])
+assert len(_F_INDEX) == TRANSITION_ENTRIES
 # Q's non-zero entries in _process_noise's order: pp, pv and vp (per axis), then the diagonal from vv on.
 _Q_INDEX = _flat([(i, i) for i in range(3)] + [(i, 3 + i) for i in range(3)] + [(3 + i, i) for i in range(3)]
                  + [(i, i) for i in range(3, N_ERROR)])
@@ -268,11 +270,8 @@ class ErrorStateKF:
         bias_var = [sensors.accel_bias_initial_sigma**2] * 3 + [sensors.gyro_bias_initial_sigma**2] * 3
         velocity_var = [prm.initial_velocity_sigma_mps**2] * 3
         self._P0_diag = np.array([var_p] * 3 + velocity_var + [var_t] * 3 + bias_var)
-        self._kf = KalmanFilter(dim_x=N_ERROR, dim_z=N_MOCAP)
-        self._kf.inv = _inverse  # filterpy's documented hook for S^-1 (default numpy.linalg.inv)
-        # Set as attributes, not passed per call: filterpy runs numpy.isscalar on a passed R or Q (~0.6 us).
-        self._kf.R = self._R
-        self._zero_dx = np.zeros((N_ERROR, 1))  # never written in place (filterpy rebinds x)
+        self._zero_dx = np.zeros((N_ERROR, 1))  # the error state before an update (never written in place)
+        self._posterior: tuple[np.ndarray, np.ndarray] | None = None  # (dx, P) of the last _innovate
         self._q_cache: dict[float, np.ndarray] = {}
         self._reset_bookkeeping()
         self._waiting_poses: list[MocapPose] = []  # poses seen before the first IMU sample
@@ -379,10 +378,8 @@ class ErrorStateKF:
         dt = float(t_s) - node.time_s
         if node.f is None or not dt > 0.0:
             return self.estimate()
-        x, r0, f, w = self._nominal_step(node.x, node.f, node.w, node.f, node.w, dt)
-        F, Q = self._transition(r0, f, w, dt)
-        # functional form: self._kf stays untouched
-        _, P = filterpy_predict(self._zero_dx, self._covariance_at(last), F, Q)
+        x, (F, Q) = self._step(node.x, node.f, node.w, node.f, node.w, dt)
+        _, P = filterpy_predict(self._zero_dx, self._covariance_at(last), F, Q)  # functional: nothing kept
         return self._make_estimate(float(t_s), x, P, node.w)
 
     def health(self) -> EstimatorHealth:
@@ -615,29 +612,40 @@ class ErrorStateKF:
         return status
 
     def _innovate(self, x: tuple, P: np.ndarray, node: _Node) -> float:
-        """filterpy update with the mocap residual; returns d^2 = y' S^-1 y (posterior left in self._kf)."""
+        """The update with the mocap residual; returns d^2 = y' S^-1 y (posterior kept for _inject)."""
         dtheta = attitude_error(x[6:10], node.attitude)
         px, py, pz = node.position
         z = np.array((px - x[0], py - x[1], pz - x[2], *dtheta)).reshape(N_MOCAP, 1)
-        kf = self._kf
-        kf.x = self._zero_dx
-        kf.P = P
-        kf.update(z, H=self._H)  # R: the attribute set in __init__
-        y = kf.y[:, 0]
-        return float(y @ kf.SI @ y)
+        dx, P_post, y, SI = self._update(P, z)
+        self._posterior = dx, P_post
+        y = y[:, 0]
+        return float(y @ SI @ y)
+
+    def _update(self, P: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """filterpy KalmanFilter.update(z, H=H) on the zero error state with P, by its own numpy calls in its
+        order, so the same bits: returns the posterior dx and P, the residual y and S^-1. What filterpy does
+        besides - a deep copy of z, copies of the posterior, resetting its likelihood caches - is a third of
+        its time and unused here (tests/estimator/test_eskf_kernels.py checks the bits against filterpy)."""
+        H, R = self._H, self._R
+        y = z - np.dot(H, self._zero_dx)
+        PHT = np.dot(P, H.T)
+        SI = _inverse(np.dot(H, PHT) + R)
+        K = np.dot(PHT, SI)
+        dx = self._zero_dx + np.dot(K, y)
+        I_KH = _IDENTITY_ERROR - np.dot(K, H)
+        return dx, np.dot(np.dot(I_KH, P), I_KH.T) + np.dot(np.dot(K, R), K.T), y, SI
 
     def _inject(self, x: tuple) -> tuple[tuple, np.ndarray]:
-        """Fold filterpy's posterior dx into the nominal state and reset the error (Sola sec. 6.2-6.3)."""
-        kf = self._kf
-        dx = kf.x[:, 0].tolist()
-        kf.x = self._zero_dx
+        """Fold the update's posterior dx into the nominal state and reset the error (Sola sec. 6.2-6.3)."""
+        dx_column, P_post = self._posterior
+        dx = dx_column[:, 0].tolist()
         q = quat_normalize_positive_w(quat_multiply(x[6:10], quat_exp(dx[6], dx[7], dx[8])))
         x_new = (x[0] + dx[0], x[1] + dx[1], x[2] + dx[2], x[3] + dx[3], x[4] + dx[4], x[5] + dx[5], *q,
                  x[10] + dx[9], x[11] + dx[10], x[12] + dx[11], x[13] + dx[12], x[14] + dx[13], x[15] + dx[14])
         hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
         G = _IDENTITY_ERROR.copy()
         G.put(_G_INDEX, (1.0, hz, -hy, -hz, 1.0, hx, hy, -hx, 1.0))  # G_theta = I - [dtheta/2]x
-        P = G @ kf.P @ G.T
+        P = G @ P_post @ G.T
         return x_new, 0.5 * (P + P.T)
 
     def _reinitialised(self, x: tuple, P: np.ndarray, node: _Node) -> tuple[tuple, np.ndarray]:
@@ -662,18 +670,18 @@ class ErrorStateKF:
             return x, transition
         n = math.ceil(dt / self.params.imu_max_step_s - 1e-9)  # slack: 2.0000000001 steps are 2
         if n <= 1:
-            x, r0, f, w = self._nominal_step(x, f0, w0, f1, w1, dt)
-            if transition is None:
-                transition = self._transition(r0, f, w, dt)
-            return x, transition
+            if transition is not None:
+                return propagate(x, f0, w0, f1, w1, dt, self._g, None, None), transition
+            return self._step(x, f0, w0, f1, w1, dt)
         h = dt / n
         fa, wa = f0, w0
         F_total = Q_total = None
         for k in range(1, n + 1):
             fb, wb = _lerp(f0, f1, k / n), _lerp(w0, w1, k / n)
-            x, r0, f, w = self._nominal_step(x, fa, wa, fb, wb, h)
-            if transition is None:
-                F, Q = self._transition(r0, f, w, h)
+            if transition is not None:
+                x = propagate(x, fa, wa, fb, wb, h, self._g, None, None)
+            else:
+                x, (F, Q) = self._step(x, fa, wa, fb, wb, h)
                 if F_total is None:
                     F_total, Q_total = F, Q
                 else:
@@ -682,54 +690,13 @@ class ErrorStateKF:
             fa, wa = fb, wb
         return x, transition if transition is not None else (F_total, Q_total)
 
-    def _nominal_step(self, x: tuple, f0, w0, f1, w1, dt: float) -> tuple[tuple, tuple, tuple, tuple]:
-        """Trapezoidal nominal propagation (module docstring). Returns x1, R(q0), mean f and w (bias-free)."""
-        px, py, pz, vx, vy, vz, qw, qx, qy, qz, bax, bay, baz, bgx, bgy, bgz = x
-        wx = 0.5 * (w0[0] + w1[0]) - bgx
-        wy = 0.5 * (w0[1] + w1[1]) - bgy
-        wz = 0.5 * (w0[2] + w1[2]) - bgz
-        q0 = (qw, qx, qy, qz)
-        r0 = quat_to_rows(q0)
-        q1 = quat_normalize_positive_w(quat_multiply(q0, quat_exp(wx * dt, wy * dt, wz * dt)))
-        a0 = rotate(r0, f0[0] - bax, f0[1] - bay, f0[2] - baz)
-        a1 = rotate(quat_to_rows(q1), f1[0] - bax, f1[1] - bay, f1[2] - baz)
-        ax = 0.5 * (a0[0] + a1[0])
-        ay = 0.5 * (a0[1] + a1[1])
-        az = 0.5 * (a0[2] + a1[2]) - self._g
-        half_dt2 = 0.5 * dt * dt
-        x1 = (px + vx * dt + ax * half_dt2, py + vy * dt + ay * half_dt2, pz + vz * dt + az * half_dt2,
-              vx + ax * dt, vy + ay * dt, vz + az * dt, *q1, bax, bay, baz, bgx, bgy, bgz)
-        f = (0.5 * (f0[0] + f1[0]) - bax, 0.5 * (f0[1] + f1[1]) - bay, 0.5 * (f0[2] + f1[2]) - baz)
-        return x1, r0, f, (wx, wy, wz)
-
-    def _transition(self, r: tuple, f: tuple, w: tuple, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """First-order error transition F (a new array) and process noise Q (shared: read only) over dt.
-
-        r: R(q0) row-major; f: bias-corrected specific force FLU; w: bias-corrected rate FLU.
-        F is the identity with its 48 other entries put in by one call (numpy block writes cost ~0.5 us
-        each); Q depends on dt alone and is cached (_process_noise).
-        """
-        fx, fy, fz = f
-        r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
-        # M = R [f]x, row by row
-        m0, m1, m2 = r1 * fz - r2 * fy, r2 * fx - r0 * fz, r0 * fy - r1 * fx
-        m3, m4, m5 = r4 * fz - r5 * fy, r5 * fx - r3 * fz, r3 * fy - r4 * fx
-        m6, m7, m8 = r7 * fz - r8 * fy, r8 * fx - r6 * fz, r6 * fy - r7 * fx
-        h, k = -0.5 * dt * dt, -dt
-        wx, wy, wz = w[0] * dt, w[1] * dt, w[2] * dt
+    def _step(self, x: tuple, f0, w0, f1, w1, dt: float) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
+        """One trapezoidal nominal step (module docstring; estimator.eskf_kernels.propagate) and its (F, Q):
+        F a new array, the identity with its 48 other entries written by the kernel; Q shared, read only
+        (_process_noise)."""
         F = _IDENTITY_ERROR.copy()
-        F.put(_F_INDEX, (
-            dt, dt, dt,  # dp <- dv: I dt
-            h * m0, h * m1, h * m2, h * r0, h * r1, h * r2,  # dp <- dtheta: -R[f]x dt^2/2, db_a: -R dt^2/2
-            h * m3, h * m4, h * m5, h * r3, h * r4, h * r5,
-            h * m6, h * m7, h * m8, h * r6, h * r7, h * r8,
-            k * m0, k * m1, k * m2, k * r0, k * r1, k * r2,  # dv <- dtheta: -R[f]x dt, db_a: -R dt
-            k * m3, k * m4, k * m5, k * r3, k * r4, k * r5,
-            k * m6, k * m7, k * m8, k * r6, k * r7, k * r8,
-            wz, -wy, -wz, wx, wy, -wx,  # dtheta <- dtheta off the diagonal: -[w dt]x
-            k, k, k,  # dtheta <- db_g: -I dt
-        ))
-        return F, self._process_noise(dt)
+        x1 = propagate(x, f0, w0, f1, w1, dt, self._g, F, _F_INDEX)
+        return x1, (F, self._process_noise(dt))
 
     def _process_noise(self, dt: float) -> np.ndarray:
         """Q over dt (module docstring), read-only, cached by dt: IMU intervals take a few lengths."""
@@ -791,7 +758,7 @@ def _frozen(cls: type, fields: dict):
 
 
 def _inverse(s: np.ndarray) -> np.ndarray:
-    """S^-1 for filterpy's update by LAPACK gesv (S X = I), the routine numpy.linalg.inv runs too: on the
+    """S^-1 for the update by LAPACK gesv (S X = I), the routine numpy.linalg.inv runs too: on the
     6x6 innovation covariance numpy's argument checks cost ~7 of its ~8 us."""
     _, _, inverse, info = lapack_gesv(s, _IDENTITY_MOCAP)
     if info != 0:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator import eskf_kernels
 from estimator.eskf import ErrorStateKF
 from estimator.sensor_spec import SensorSpec, load_sensor_spec, subsampled
 from groundstation.clocks import DEFAULT_RATE_HZ, LockstepClock, RealtimeClock
@@ -124,6 +125,9 @@ def run_session(opts: SessionOptions) -> SessionResult:
             clock_box["clock"] = clock
             # a log block's IMU is every n-th sample of the vehicle's: each carries that sample's noise
             estimator = ErrorStateKF(subsampled(opts.sensor_spec, vehicle.imu.rate_hz, imu_rate_hz), imu_rate_hz)
+            if not eskf_kernels.COMPILED:
+                log.warning("estimator: its compiled propagation was not built (no C compiler at pip install?): "
+                            "the Python twin runs, same results, slower (README: Lockstep speed)")
             gains = load_gains(opts.gains)
             controller = SE3Controller(vehicle, gains, variant=opts.controller_variant)
             if opts.user_code is not None:  # the user's SE3Control; ours stays as its failsafe

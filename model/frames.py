@@ -28,7 +28,7 @@ IDENTITY: Quat = (1.0, 0.0, 0.0, 0.0)
 
 # Below this angle (rad) quat_exp/quat_log use their Taylor series: sin(a/2)/a = 1/2 - a^2/48 + ...,
 # whose truncation error a^4/3840 is below double precision for a < 1e-4 (and well below at 1e-6).
-_SMALL_ANGLE_RAD = 1e-6
+SMALL_ANGLE_RAD = 1e-6
 # Below this rotation angle (rad) over a step, quat_integrate returns q unchanged (exact to rounding).
 _NEGLIGIBLE_ANGLE_RAD = 1e-12
 
@@ -79,9 +79,11 @@ def quat_normalize_positive_w(q: Quat) -> Quat:
 
 
 def quat_exp(rx: float, ry: float, rz: float) -> Quat:
-    """Unit quaternion of the rotation vector (rx, ry, rz) rad: [cos(a/2), sin(a/2) r/a], a = |r|."""
+    """Unit quaternion of the rotation vector (rx, ry, rz) rad: [cos(a/2), sin(a/2) r/a], a = |r|.
+
+    estimator/_eskf_kernels.c repeats this (with SMALL_ANGLE_RAD passed in): change both together."""
     angle = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if angle < _SMALL_ANGLE_RAD:
+    if angle < SMALL_ANGLE_RAD:
         s = 0.5 - angle * angle / 48.0
         return (1.0 - angle * angle / 8.0, s * rx, s * ry, s * rz)
     s = math.sin(0.5 * angle) / angle
@@ -94,7 +96,7 @@ def quat_log(q: Quat) -> Vec3:
     if w < 0.0:  # the short way round
         w, x, y, z = -w, -x, -y, -z
     n = math.sqrt(x * x + y * y + z * z)
-    if n < _SMALL_ANGLE_RAD:
+    if n < SMALL_ANGLE_RAD:
         k = 2.0 / w  # 2 atan2(n, w) / n -> 2 / w as n -> 0
         return (k * x, k * y, k * z)
     k = 2.0 * math.atan2(n, w) / n

@@ -1,0 +1,236 @@
+/* Compiled twin of estimator/eskf_kernels.py: the ESKF's per-sample propagation (issue 19).
+
+Takes in: the nominal state x (16 floats: p, v, q wxyz, b_a, b_g), the IMU signal at both ends of an
+interval (f0, w0, f1, w1: specific force FLU m/s^2, rate FLU rad/s, 3 floats each), its length dt (s), g
+(m/s^2), and optionally F - a writable C-contiguous float64 array
+holding the identity - with the flat indices (int64) its 48 other entries go to.
+Gives out: the nominal state after dt (a tuple of 16 floats), and F's entries written in place.
+quat_exp's small-angle threshold is model.frames.SMALL_ANGLE_RAD, read once when the module loads.
+
+Same result as the Python twin, bit for bit: every expression below is the Python one in the same order,
+one IEEE double operation at a time (setup.py builds this file with -ffp-contract=off, so no multiply-add
+is fused), and sqrt, sin and cos are the C library's, which CPython's math module calls too.
+tests/estimator/test_eskf_kernels.py checks the bits against the twin. */
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#define N_STATE 16
+#define N_TRANSITION 48
+#define F_SIZE (15 * 15)
+
+static int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *name) {
+    PyObject *fast = PySequence_Fast(seq, name);
+    if (fast == NULL) return -1;
+    if (PySequence_Fast_GET_SIZE(fast) != n) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd numbers, got %zd", name, n,
+                     PySequence_Fast_GET_SIZE(fast));
+        Py_DECREF(fast);
+        return -1;
+    }
+    PyObject **items = PySequence_Fast_ITEMS(fast);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        out[i] = PyFloat_AsDouble(items[i]);
+        if (out[i] == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(fast);
+            return -1;
+        }
+    }
+    Py_DECREF(fast);
+    return 0;
+}
+
+/* model.frames.quat_to_rows */
+static void quat_to_rows(const double q[4], double r[9]) {
+    double w = q[0], x = q[1], y = q[2], z = q[3];
+    double xx = x * x, yy = y * y, zz = z * z;
+    double xy = x * y, xz = x * z, yz = y * z;
+    double wx = w * x, wy = w * y, wz = w * z;
+    r[0] = 1.0 - 2.0 * (yy + zz); r[1] = 2.0 * (xy - wz); r[2] = 2.0 * (xz + wy);
+    r[3] = 2.0 * (xy + wz); r[4] = 1.0 - 2.0 * (xx + zz); r[5] = 2.0 * (yz - wx);
+    r[6] = 2.0 * (xz - wy); r[7] = 2.0 * (yz + wx); r[8] = 1.0 - 2.0 * (xx + yy);
+}
+
+/* model.frames.rotate */
+static void rotate(const double r[9], double vx, double vy, double vz, double out[3]) {
+    out[0] = r[0] * vx + r[1] * vy + r[2] * vz;
+    out[1] = r[3] * vx + r[4] * vy + r[5] * vz;
+    out[2] = r[6] * vx + r[7] * vy + r[8] * vz;
+}
+
+static double small_angle_rad; /* model.frames.SMALL_ANGLE_RAD */
+
+/* model.frames.quat_exp */
+static void quat_exp(double rx, double ry, double rz, double q[4]) {
+    double angle = sqrt(rx * rx + ry * ry + rz * rz);
+    if (angle < small_angle_rad) {
+        double s = 0.5 - angle * angle / 48.0;
+        q[0] = 1.0 - angle * angle / 8.0; q[1] = s * rx; q[2] = s * ry; q[3] = s * rz;
+        return;
+    }
+    double s = sin(0.5 * angle) / angle;
+    q[0] = cos(0.5 * angle); q[1] = s * rx; q[2] = s * ry; q[3] = s * rz;
+}
+
+/* model.frames.quat_multiply */
+static void quat_multiply(const double a[4], const double b[4], double out[4]) {
+    double aw = a[0], ax = a[1], ay = a[2], az = a[3];
+    double bw = b[0], bx = b[1], by = b[2], bz = b[3];
+    out[0] = aw * bw - ax * bx - ay * by - az * bz;
+    out[1] = aw * bx + ax * bw + ay * bz - az * by;
+    out[2] = aw * by - ax * bz + ay * bw + az * bx;
+    out[3] = aw * bz + ax * by - ay * bx + az * bw;
+}
+
+/* model.frames.quat_normalize_positive_w; -1 (ValueError set) for the zero quaternion */
+static int quat_normalize_positive_w(double q[4]) {
+    double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (n == 0.0) {
+        PyErr_SetString(PyExc_ValueError, "zero quaternion");
+        return -1;
+    }
+    if (q[0] < 0.0) n = -n;
+    q[0] = q[0] / n; q[1] = q[1] / n; q[2] = q[2] / n; q[3] = q[3] / n;
+    return 0;
+}
+
+/* F's 48 entries in eskf_kernels.transition_values' order, from R(q0) row-major, the mean bias-corrected
+   specific force f and rate w, over dt */
+static void transition_values(const double r[9], const double f[3], const double w[3], double dt,
+                              double v[N_TRANSITION]) {
+    double fx = f[0], fy = f[1], fz = f[2];
+    double r0 = r[0], r1 = r[1], r2 = r[2], r3 = r[3], r4 = r[4], r5 = r[5], r6 = r[6], r7 = r[7], r8 = r[8];
+    double m0 = r1 * fz - r2 * fy, m1 = r2 * fx - r0 * fz, m2 = r0 * fy - r1 * fx;
+    double m3 = r4 * fz - r5 * fy, m4 = r5 * fx - r3 * fz, m5 = r3 * fy - r4 * fx;
+    double m6 = r7 * fz - r8 * fy, m7 = r8 * fx - r6 * fz, m8 = r6 * fy - r7 * fx;
+    double h = -0.5 * dt * dt, k = -dt;
+    double wx = w[0] * dt, wy = w[1] * dt, wz = w[2] * dt;
+    double values[N_TRANSITION] = {
+        dt, dt, dt,
+        h * m0, h * m1, h * m2, h * r0, h * r1, h * r2,
+        h * m3, h * m4, h * m5, h * r3, h * r4, h * r5,
+        h * m6, h * m7, h * m8, h * r6, h * r7, h * r8,
+        k * m0, k * m1, k * m2, k * r0, k * r1, k * r2,
+        k * m3, k * m4, k * m5, k * r3, k * r4, k * r5,
+        k * m6, k * m7, k * m8, k * r6, k * r7, k * r8,
+        wz, -wy, -wz, wx, wy, -wx,
+        k, k, k,
+    };
+    memcpy(v, values, sizeof(values));
+}
+
+/* Write the transition values into F at `index` (both checked: float64 15x15 writable, 48 int64). */
+static int put_transition(PyObject *F_obj, PyObject *index_obj, const double v[N_TRANSITION]) {
+    Py_buffer F, index;
+    if (PyObject_GetBuffer(F_obj, &F, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return -1;
+    if (PyObject_GetBuffer(index_obj, &index, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
+        PyBuffer_Release(&F);
+        return -1;
+    }
+    int ok = F.itemsize == 8 && F.len == F_SIZE * 8 && strcmp(F.format, "d") == 0
+             && index.itemsize == 8 && index.len == N_TRANSITION * 8
+             && (strcmp(index.format, "l") == 0 || strcmp(index.format, "q") == 0);
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "F must be a writable C-contiguous 15x15 float64 array and index "
+                                          "48 int64 flat indices");
+    } else {
+        double *out = (double *)F.buf;
+        const int64_t *at = (const int64_t *)index.buf;
+        for (int i = 0; i < N_TRANSITION; i++) {
+            if (at[i] < 0 || at[i] >= F_SIZE) {
+                PyErr_SetString(PyExc_ValueError, "transition index out of range");
+                ok = 0;
+                break;
+            }
+            out[at[i]] = v[i];
+        }
+    }
+    PyBuffer_Release(&index);
+    PyBuffer_Release(&F);
+    return ok ? 0 : -1;
+}
+
+static PyObject *float_tuple(const double *v, Py_ssize_t n) {
+    PyObject *t = PyTuple_New(n);
+    if (t == NULL) return NULL;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *item = PyFloat_FromDouble(v[i]);
+        if (item == NULL) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, i, item);
+    }
+    return t;
+}
+
+/* propagate(x, f0, w0, f1, w1, dt, g, F, index) -> x1: eskf_kernels.propagate */
+static PyObject *propagate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 9) {
+        PyErr_Format(PyExc_TypeError, "propagate takes 9 arguments (%zd given)", nargs);
+        return NULL;
+    }
+    double x[N_STATE], f0[3], w0[3], f1[3], w1[3];
+    if (read_floats(args[0], x, N_STATE, "x") < 0 || read_floats(args[1], f0, 3, "f0") < 0
+        || read_floats(args[2], w0, 3, "w0") < 0 || read_floats(args[3], f1, 3, "f1") < 0
+        || read_floats(args[4], w1, 3, "w1") < 0)
+        return NULL;
+    double dt = PyFloat_AsDouble(args[5]);
+    double g = PyFloat_AsDouble(args[6]);
+    if (PyErr_Occurred()) return NULL;
+
+    double px = x[0], py = x[1], pz = x[2], vx = x[3], vy = x[4], vz = x[5];
+    double bax = x[10], bay = x[11], baz = x[12], bgx = x[13], bgy = x[14], bgz = x[15];
+    double w[3] = {0.5 * (w0[0] + w1[0]) - bgx, 0.5 * (w0[1] + w1[1]) - bgy, 0.5 * (w0[2] + w1[2]) - bgz};
+    double q0[4] = {x[6], x[7], x[8], x[9]};
+    double r0[9], r1[9], dq[4], q1[4], a0[3], a1[3];
+    quat_to_rows(q0, r0);
+    quat_exp(w[0] * dt, w[1] * dt, w[2] * dt, dq);
+    quat_multiply(q0, dq, q1);
+    if (quat_normalize_positive_w(q1) < 0) return NULL;
+    rotate(r0, f0[0] - bax, f0[1] - bay, f0[2] - baz, a0);
+    quat_to_rows(q1, r1);
+    rotate(r1, f1[0] - bax, f1[1] - bay, f1[2] - baz, a1);
+    double ax = 0.5 * (a0[0] + a1[0]);
+    double ay = 0.5 * (a0[1] + a1[1]);
+    double az = 0.5 * (a0[2] + a1[2]) - g;
+    double half_dt2 = 0.5 * dt * dt;
+    double x1[N_STATE] = {
+        px + vx * dt + ax * half_dt2, py + vy * dt + ay * half_dt2, pz + vz * dt + az * half_dt2,
+        vx + ax * dt, vy + ay * dt, vz + az * dt, q1[0], q1[1], q1[2], q1[3], bax, bay, baz, bgx, bgy, bgz,
+    };
+    if (args[7] != Py_None) {
+        double f[3] = {0.5 * (f0[0] + f1[0]) - bax, 0.5 * (f0[1] + f1[1]) - bay, 0.5 * (f0[2] + f1[2]) - baz};
+        double v[N_TRANSITION];
+        transition_values(r0, f, w, dt, v);
+        if (put_transition(args[7], args[8], v) < 0) return NULL;
+    }
+    return float_tuple(x1, N_STATE);
+}
+
+static PyMethodDef methods[] = {
+    {"propagate", (PyCFunction)(void (*)(void))propagate, METH_FASTCALL,
+     "propagate(x, f0, w0, f1, w1, dt, g, F, index) -> x1 (estimator.eskf_kernels.propagate)"},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "_eskf_kernels",
+    "Compiled twin of estimator.eskf_kernels (the ESKF's per-sample propagation).", -1, methods,
+};
+
+PyMODINIT_FUNC PyInit__eskf_kernels(void) {
+    PyObject *frames = PyImport_ImportModule("model.frames");
+    if (frames == NULL) return NULL;
+    PyObject *threshold = PyObject_GetAttrString(frames, "SMALL_ANGLE_RAD");
+    Py_DECREF(frames);
+    if (threshold == NULL) return NULL;
+    small_angle_rad = PyFloat_AsDouble(threshold);
+    Py_DECREF(threshold);
+    if (PyErr_Occurred()) return NULL;
+    return PyModule_Create(&module);
+}
