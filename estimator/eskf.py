@@ -25,7 +25,8 @@ Mocap measurement: z = [p_m - p ; Log(q^* (x) q_m)] = H dx + n, H = [I 0 0 0 0; 
 
 The Kalman steps are filterpy's (filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state),
 made by filterpy's own numpy calls in filterpy's order without the copies it keeps for its callers, so with
-its bits (tests/estimator/test_eskf_kernels.py checks them against filterpy): predict P = F P F' + Q;
+its bits (tests/estimator/test_eskf_kernels.py checks them against filterpy; filterpy itself is not imported
+here: it imports scipy.stats, ~0.4 s of every ground station's start-up): predict P = F P F' + Q;
 update y = z - H x, S = H P H' + R, S^-1 (LAPACK gesv: numpy.linalg.inv runs the same routine behind ~7 us
 of argument checks), K = P H' S^-1, x = x + K y and the Joseph form P = (I - K H) P (I - K H)' + K R K'.
 What this module does around them: the nominal propagation above and F (the identity, its 48 other entries
@@ -47,7 +48,7 @@ not change are reused (linearised before the replay's corrections: a second-orde
 1e-3 of the estimate's own sigma in the tests): a replayed IMU sample costs its nominal step and one
 predict, not a new F.
 Covariances are propagated lazily: an IMU node gets its nominal state and (F, Q) when processed, its
-P = F P_before F' + Q (filterpy predict) only when something needs it - a mocap frame after it,
+P = F P_before F' + Q (the predict) only when something needs it - a mocap frame after it,
 estimate(), predict_to(), or its becoming the buffer's base - so when several samples and a late frame
 arrive between two estimate() calls (attitude mode: 5 IMU samples and 1 frame per tick) each interval is
 predicted once, not once per replay. Same (F, Q) in the same order: bit for bit the eager result.
@@ -57,8 +58,8 @@ A mocap frame from the future (sample time after the newest IMU sample) is held,
 when the IMU stream reaches its sample time. Lost IMU frames: the interval is integrated between
 the samples either side of the gap (signal interpolated linearly, sub-steps of at most imu.max_step_s),
 and Q grows with its length; gaps are counted when their nodes leave the buffer, i.e. once final.
-predict_to(t) makes one step from the newest sample holding it, with filterpy.kalman.predict (the
-functional form), so the filter itself is untouched. estimate() is cached until the next input.
+predict_to(t) makes one step from the newest sample holding it (nominal step and predict into new
+values), so the filter itself is untouched. estimate() is cached until the next input.
 
 Outliers and re-initialisation. A frame with d^2 > chi2.ppf(gating.chi2_probability, 6) is rejected and
 counted. A frame failing the gate instead re-initialises the filter - position and attitude := the
@@ -77,9 +78,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from filterpy.kalman import predict as filterpy_predict
 from scipy.linalg.lapack import dgesv as lapack_gesv
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from estimator.eskf_kernels import TRANSITION_ENTRIES, propagate
 from estimator.sensor_spec import SensorSpec
@@ -266,7 +266,7 @@ class ErrorStateKF:
         self._H = np.zeros((N_MOCAP, N_ERROR))
         self._H[0:3, POSITION] = np.eye(3)
         self._H[3:6, ATTITUDE] = np.eye(3)
-        self._gate_d2 = float(chi2.ppf(prm.gate_chi2_probability, N_MOCAP))
+        self._gate_d2 = chi2_quantile(prm.gate_chi2_probability, N_MOCAP)
         bias_var = [sensors.accel_bias_initial_sigma**2] * 3 + [sensors.gyro_bias_initial_sigma**2] * 3
         velocity_var = [prm.initial_velocity_sigma_mps**2] * 3
         self._P0_diag = np.array([var_p] * 3 + velocity_var + [var_t] * 3 + bias_var)
@@ -379,7 +379,7 @@ class ErrorStateKF:
         if node.f is None or not dt > 0.0:
             return self.estimate()
         x, (F, Q) = self._step(node.x, node.f, node.w, node.f, node.w, dt)
-        _, P = filterpy_predict(self._zero_dx, self._covariance_at(last), F, Q)  # functional: nothing kept
+        P = self._predict(self._covariance_at(last), (F, Q))  # a new array: the filter keeps its own
         return self._make_estimate(float(t_s), x, P, node.w)
 
     def health(self) -> EstimatorHealth:
@@ -535,7 +535,7 @@ class ErrorStateKF:
         return node.status != _REINIT
 
     def _covariance_at(self, j: int) -> np.ndarray:
-        """P of node j, running filterpy predict over the intervals whose P is still pending.
+        """P of node j, running the predict over the intervals whose P is still pending.
 
         Lazy on purpose: a replay after a late mocap frame changes every later node, and when nothing asks
         for their P in between (several samples per flight-loop tick) each interval is predicted once
@@ -662,9 +662,9 @@ class ErrorStateKF:
         """Nominal state after dt with signals (f0, w0) at the start and (f1, w1) at the end, and (F, Q).
 
         Intervals longer than imu.max_step_s are integrated in equal sub-steps (signals interpolated);
-        their F and Q are chained into one F = F_n..F_1, Q = F_n(..)F_n' + Q_n for a single filterpy
-        predict. Given `transition` (F, Q) - stored from an earlier pass over this same interval - only
-        the nominal state is recomputed. Returns (x, (F, Q)), (x, None) for dt <= 0 (P unchanged).
+        their F and Q are chained into one F = F_n..F_1, Q = F_n(..)F_n' + Q_n for a single predict.
+        Given `transition` (F, Q) - stored from an earlier pass over this same interval - only the nominal
+        state is recomputed. Returns (x, (F, Q)), (x, None) for dt <= 0 (P unchanged).
         """
         if dt <= 0.0:
             return x, transition
@@ -755,6 +755,13 @@ def _frozen(cls: type, fields: dict):
     instance = object.__new__(cls)
     instance.__dict__.update(fields)
     return instance
+
+
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The chi-square distribution's quantile: 2 P^-1(dof/2, probability), P the regularized lower incomplete
+    gamma function (scipy.stats.chi2.ppf computes this same expression; tests/estimator checks the bits).
+    From scipy.special: importing scipy.stats costs ~0.4 s per process, in every ground station's start-up."""
+    return float(2 * gammaincinv(dof / 2, probability))
 
 
 def _inverse(s: np.ndarray) -> np.ndarray:

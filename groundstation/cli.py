@@ -11,8 +11,8 @@ mission: 0 when the goal was reached without a collision in flight (whatever the
 `fly` and `step` start an emulator as a child process on a private loopback zenoh endpoint. In lockstep
 (where the child's time stands still until the ground station joins) they start it as soon as the options
 and the world are checked, so that its start-up (~0.3 s) overlaps the ground station's: the modules that
-take most of a ground station's start (the planner with scipy.optimize, the session with the estimator,
-whose filterpy imports scipy.stats: ~0.7 s together) are imported after it, where they are used, and an
+take most of a ground station's start (the planner with scipy.optimize, the session with the estimator:
+~0.5 s together) are imported after it, where they are used, and an
 error in the user's code or in planning stops the child again (one line, as before). In realtime the child
 starts last, as the vehicle lives from its start;
 `groundstation` flies whatever answers at the default endpoint (DEFAULT_ENDPOINT, where `cfstack

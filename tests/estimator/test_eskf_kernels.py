@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
+from filterpy.kalman import predict as filterpy_predict
+from scipy.stats import chi2
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -47,7 +49,15 @@ def test_covariance_prediction_is_filterpys_bit_for_bit():
         kf.predict()
         ours = ErrorStateKF._predict(P, (F, Q))
         assert ours.tobytes() == kf.P.tobytes()
+        assert ours.tobytes() == filterpy_predict(np.zeros((N_ERROR, 1)), P, F, Q)[1].tobytes()  # predict_to's
         assert not np.shares_memory(ours, P)  # a new array: the stored P of the node before is kept
+
+
+def test_gate_quantile_is_scipys_chi2_bit_for_bit():
+    for probability in (0.5, 0.9, 0.99, 0.999, 0.99999, 1.0 - 1e-12):
+        for dof in (1, 3, 6):
+            assert eskf.chi2_quantile(probability, dof) == float(chi2.ppf(probability, dof))
+    assert eskf.chi2_quantile(0.95, 6) == pytest.approx(12.5916, abs=1e-4)  # the chi-square table's value
 
 
 def test_update_is_filterpys_bit_for_bit():

@@ -121,7 +121,8 @@ def test_a_bad_option_is_one_line_and_exit_code_2_at_once(command, option, value
     assert option in one_line_error(run) and run.stdout == ""
 
 
-# What takes most of a ground station's start-up (the estimator's filterpy imports scipy.stats: ~0.6 s here).
+# What takes most of a ground station's start-up (the planner's scipy.optimize, the estimator's scipy: ~0.5 s
+# here; filterpy and scipy.stats were among them before the estimator stopped importing them).
 HEAVY_MODULES = ("groundstation.session", "estimator.eskf", "filterpy", "scipy.stats", "groundstation.planned")
 
 
@@ -130,6 +131,15 @@ def test_fly_and_step_check_their_options_and_start_their_emulator_before_the_he
     # heavy modules come after, so the child's own start-up overlaps them
     probe = ("import sys, groundstation.cli, groundstation.step_cli; "
              f"print(','.join(m for m in {HEAVY_MODULES!r} if m in sys.modules))")
+    run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stdout.strip() == "", run.stdout + run.stderr
+
+
+def test_a_ground_station_never_imports_filterpy_or_scipy_stats():
+    # the estimator makes filterpy's Kalman steps itself (tests/estimator/test_eskf_kernels.py): importing
+    # filterpy imports scipy.stats, ~0.4 s of each flight's start-up
+    probe = ("import sys, groundstation.session, groundstation.planned; "
+             "print(','.join(m for m in ('filterpy', 'scipy.stats') if m in sys.modules))")
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and run.stdout.strip() == "", run.stdout + run.stderr
 
