@@ -2,11 +2,15 @@
 
 Takes in: nothing (seeded synthetic 1 m/s circles from tests/estimator/synthetic.py, crazyflie + vicon).
 Gives out: a table on stdout: median over interleaved repeats of the mean thread CPU microseconds per add_imu,
-per add_mocap, per estimate() and per flight-loop tick, for the baseline and the candidate, their ratio,
-and how far the two filters' final estimates differ (in units of the candidate's own sigma).
+per add_mocap, per estimate() and per flight-loop tick, for the baseline, the candidate's Python twin and
+the candidate, their ratios, how far the baseline's final estimates differ from the candidate's (in units of
+the candidate's own sigma), and whether the two propagations' final estimates have the same bits.
 
-Baseline: estimator/eskf.py as of commit BASELINE_COMMIT (before the per-sample speed work), read with
-`git show` and loaded as the module `eskf_baseline`; candidate: the working tree's estimator.eskf. Both
+Baseline: estimator/eskf.py (and those of BASELINE_MODULES the commit has) as of commit BASELINE_COMMIT
+(before the per-sample speed work; --baseline-commit), read with `git show` and loaded as package
+`bench_baseline`; candidate: the working tree's estimator.eskf with its propagation as the ground station
+runs it (compiled when estimator/_eskf_kernels.c was built); py twin: the same filter on the Python twin of
+that propagation (estimator/eskf_kernels.py), i.e. what the compiled kernel saves. All
 get the same messages in the same order, fed as the ground station's lockstep loop does:
   moments  - 2 ms ticks: the tick's messages, then one estimate() (one IMU sample per tick);
   attitude - 10 ms ticks: the tick's messages (5 IMU samples, 1 mocap frame), then one estimate().
