@@ -26,7 +26,7 @@ Mocap measurement: z = [p_m - p ; Log(q^* (x) q_m)] = H dx + n, H = [I 0 0 0 0; 
 The Kalman steps are filterpy's (filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state),
 made by filterpy's own numpy calls in filterpy's order without the copies it keeps for its callers, so with
 its bits (tests/estimator/test_eskf_kernels.py checks them against filterpy; filterpy itself is not imported
-here: it imports scipy.stats, ~0.4 s of every ground station's start-up): predict P = F P F' + Q;
+here: it imports scipy.stats, 0.24 s of a ground station's start-up): predict P = F P F' + Q;
 update y = z - H x, S = H P H' + R, S^-1 (LAPACK gesv: numpy.linalg.inv runs the same routine behind ~7 us
 of argument checks), K = P H' S^-1, x = x + K y and the Joseph form P = (I - K H) P (I - K H)' + K R K'.
 What this module does around them: the nominal propagation above and F (the identity, its 48 other entries

@@ -13,8 +13,10 @@ dt written into F.
 `propagate_python` below. They give the same bits (tests/estimator/test_eskf_kernels.py): the C file repeats
 each expression in the same order, one IEEE operation at a time. Why compiled: this is the estimator's
 hot path, once per IMU sample and again for every sample a late mocap frame replays (issue 19); the
-Python twin costs ~15 us per sample, the compiled one ~1 us (benchmarks/estimator_bench.py). Why C and not
-numba: importing numba and loading its cached code cost ~0.5 s per process, more than a flight saves.
+Python twin costs 6.5 us per sample with F, the compiled one 1.0 us, the identity's copy included (medians
+of 5 x 20000 calls, one throwaway timing). Why C and not numba: importing numba took 0.22-0.33 s and
+loading one tiny cached function 0.30-0.64 s per process here (README: Lockstep speed), more than a flight's
+propagation costs in all; this module loads in 0.2 ms.
 """
 
 from __future__ import annotations
