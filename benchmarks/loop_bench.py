@@ -26,7 +26,11 @@ Prints, from one run:
    frame's delivery by the radio, from the emulator's ledger, then the next 500 Hz firmware tick), all on
    the vehicle's clock, p50/p99 - next to a bare UDP round trip of the same size measured in the same run.
 
-Usage: python benchmarks/loop_bench.py [--quick] [--baseline REV]
+With --rounds N each flight pair is flown N times, each time between its own floor runs, and section 1
+reports medians over the rounds with the share's range (single runs on these machines vary by more than
+a change: 55-70 % of the matched floor across three runs of one tree).
+
+Usage: python benchmarks/loop_bench.py [--quick] [--baseline REV] [--rounds N]
 """
 
 from __future__ import annotations
@@ -176,7 +180,7 @@ def overlapped_ticks(period_s: float, horizon_s: float) -> int:
     return 2 if horizon_s >= period_s - 1e-9 else 1
 
 
-def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
+def lockstep_table(tmp: Path, quick: bool, rev: str, rounds: int) -> None:
     print("\n1. Lockstep real-time factor over zenoh (esb-duplex, MAVLink's default radio, firmware crazyflie), "
           "against the floor")
     print(f"   baseline = git {rev} (extracted, run from PYTHONPATH; its emulator child too), new = this tree;")
@@ -189,52 +193,76 @@ def lockstep_table(tmp: Path, quick: bool, rev: str) -> None:
         flights.append((f"maze {MAZE}", ["fly", str(SHARED_WORLDS / f"{MAZE}.json")]))
     elif not quick:
         print(f"   (maze flights skipped: {SHARED_WORLDS} is absent)")
-    results, around = {}, {}
+    results, around = {}, {}  # per (name, mode[, label]): one entry per round
     before = floor_runs(tree)
-    for name, args in flights:
-        for mode in TARGET_RTF:
-            # each flight pair is compared with floor runs flown just before and just after it, under the same load
-            around[name, mode] = _flight_floor_runs(mode)
-            for label, source in (("baseline", tree), ("new", None)):
-                log = tmp / f"{name.replace(' ', '_')}_{mode}_{label}"
-                results[name, mode, label] = fly_timed([*args, "--mode", mode], log, source)
-                print(f"   flew {name}, {mode}, {label}", file=sys.stderr, flush=True)  # progress
-            for flown, runs in _flight_floor_runs(mode).items():
-                around[name, mode][flown] += runs
+    for round_ in range(rounds):
+        for name, args in flights:
+            for mode in TARGET_RTF:
+                # each flight pair is compared with floor runs flown just before and just after it, under the
+                # same load
+                runs_around = _flight_floor_runs(mode)
+                for label, source in (("baseline", tree), ("new", None)):
+                    log = tmp / f"{name.replace(' ', '_')}_{mode}_{label}_{round_}"
+                    flown_pair = fly_timed([*args, "--mode", mode], log, source)
+                    results.setdefault((name, mode, label), []).append(flown_pair)
+                    print(f"   flew {name}, {mode}, {label} (round {round_ + 1}/{rounds})", file=sys.stderr,
+                          flush=True)  # progress
+                for flown, runs in _flight_floor_runs(mode).items():
+                    runs_around[flown] += runs
+                around.setdefault((name, mode), []).append(runs_around)
     floors(before, floor_runs(tree), rev)
-    floor = {(key, flown): statistics.median(run["rtf"] for run in runs)
-             for key, by_flown in around.items() for flown, runs in by_flown.items()}
-    floor_critical = {key: statistics.median(_responder_critical_us(run["responder"]) for run in by_flown[MATCHED])
-                      for key, by_flown in around.items()}
-    grounded = sorted({f"{name} {mode} ({flown})" for (name, mode), by_flown in around.items()
-                       for flown, runs in by_flown.items() for run in runs if not run["airborne_at_end"]})
+    # each round's flight against its own floor runs; the tables give the median over rounds (and the range)
+    round_floor = {(key, flown): [statistics.median(run["rtf"] for run in by_flown[flown]) for by_flown in rounds_]
+                   for key, rounds_ in around.items() for flown in (FILED, MATCHED)}
+    floor = {key: statistics.median(values) for key, values in round_floor.items()}
+    every = {key: [run for by_flown in rounds_ for run in by_flown[MATCHED]] for key, rounds_ in around.items()}
+    floor_critical = {key: statistics.median(_responder_critical_us(run["responder"]) for run in runs)
+                      for key, runs in every.items()}
+    grounded = sorted({f"{name} {mode} ({flown})" for (name, mode), rounds_ in around.items()
+                       for by_flown in rounds_ for flown, runs in by_flown.items()
+                       for run in runs if not run["airborne_at_end"]})
     print("\n   floor (crazyflie firmware) for each flight: the median of floor runs just before the baseline's flight "
           "and just after the new one, flown two ways:\n   'as filed' = one ThrustMoment(weight) per tick in either "
           "mode (issue 19's floor when it was filed); 'matched' = the\n   flight's own mode and command, the height "
           "held on mocap, each pose forwarded (cfstack fly's --extpose): the\n   emulator then does the flight's "
           "onboard work, airborne")
+    if rounds > 1:
+        print(f"   {rounds} rounds: RTF, floor and share are medians over the rounds, each round's flight against its "
+              "own floor runs;\n   the share's range over the rounds in brackets (the target is read off the median)")
     if grounded:
         print(f"   floor runs that ended on the floor (less physics per step than a flight): {', '.join(grounded)}")
-    print(f"\n{'flight':18} {'mode':9} {'RTF base':>8} {'RTF new':>8} {'new/base':>8} {'floor':>6} {'new/floor':>9} "
-          f"{'target':>6} {'matched':>7} {'new/matched':>11} {'target':>6} {'result':>13}")
+    share = {}
+    print(f"\n{'flight':18} {'mode':9} {'RTF base':>8} {'RTF new':>8} {'new/base':>8} {'floor':>6} {'new/floor':>15} "
+          f"{'target':>6} {'matched':>7} {'new/matched':>15} {'target':>6} {'result':>13}")
     for name, _ in flights:
         for mode in TARGET_RTF:
-            (base, _), (new, _) = results[name, mode, "baseline"], results[name, mode, "new"]
-            rb, rn = base["timing"]["real_time_factor"], new["timing"]["real_time_factor"]
-            filed, matched = floor[(name, mode), FILED], floor[(name, mode), MATCHED]
-            verdicts = ["PASS" if rn / f >= FLOOR_SHARE_TARGET else "MISS" for f in (filed, matched)]
-            print(f"{name:18} {mode:9} {rb:8.1f} {rn:8.1f} {rn / rb:8.2f} {filed:6.1f} {rn / filed:9.0%} "
-                  f"{verdicts[0]:>6} {matched:7.1f} {rn / matched:11.0%} {verdicts[1]:>6} {new['result']:>13}")
-    print("\n   per-component us per tick (exclusive; 'other' = loop wall - parts), baseline -> new")
+            rtf = {label: [plain["timing"]["real_time_factor"] for plain, _ in results[name, mode, label]]
+                   for label in ("baseline", "new")}
+            rb, rn = statistics.median(rtf["baseline"]), statistics.median(rtf["new"])
+            cells = []
+            for flown in (FILED, MATCHED):
+                shares = [new / f for new, f in zip(rtf["new"], round_floor[(name, mode), flown], strict=True)]
+                share[name, mode, flown] = statistics.median(shares)
+                spread = f" ({min(shares):.0%}-{max(shares):.0%})" if rounds > 1 else ""
+                verdict = "PASS" if share[name, mode, flown] >= FLOOR_SHARE_TARGET else "MISS"
+                cells.append(f"{floor[(name, mode), flown]:6.1f} {share[name, mode, flown]:>5.0%}{spread:>10} "
+                             f"{verdict:>6}")
+            result = ",".join(sorted({plain["result"] for plain, _ in results[name, mode, "new"]}))
+            print(f"{name:18} {mode:9} {rb:8.1f} {rn:8.1f} {rn / rb:8.2f} {cells[0]} {cells[1].strip():>30} "
+                  f"{result:>13}")
+    print("\n   per-component us per tick (exclusive; 'other' = loop wall - parts), baseline -> new"
+          + (", medians over the rounds" if rounds > 1 else ""))
     print(f"{'flight':18} {'mode':9} " + " ".join(f"{p:>15}" for p in (*PART_NAMES, "other", "loop")))
     for name, _ in flights:
         for mode in TARGET_RTF:
             cells = []
-            per_tick = [_per_tick(results[name, mode, label][1]) for label in ("baseline", "new")]
+            per_tick = [[_per_tick(parts) for _, parts in results[name, mode, label]] for label in ("baseline", "new")]
             for part in (*PART_NAMES, "other", "loop"):
-                cells.append(f"{per_tick[0][part]:6.0f} -> {per_tick[1][part]:5.0f}")
+                base, new = (statistics.median(ticks[part] for ticks in runs) for runs in per_tick)
+                cells.append(f"{base:6.0f} -> {new:5.0f}")
             print(f"{name:18} {mode:9} " + " ".join(f"{c:>15}" for c in cells))
-    critical_path_table(flights, results, {key: floor[key, MATCHED] for key in around}, floor_critical)
+    critical_path_table(flights, results, {key: floor[key, MATCHED] for key in around}, floor_critical,
+                        {key[:2]: value for key, value in share.items() if key[2] == MATCHED})
 
 
 def _flight_floor_runs(mode: str) -> dict[str, list[dict]]:
@@ -242,7 +270,7 @@ def _flight_floor_runs(mode: str) -> dict[str, list[dict]]:
     return {FILED: [_floor_run(mode, "crazyflie")], MATCHED: [_floor_run(mode, "crazyflie", flown=mode)]}
 
 
-def critical_path_table(flights, results, floor, floor_critical) -> None:
+def critical_path_table(flights, results, floor, floor_critical, measured_share) -> None:
     """What bounds each flight's speed: the ground station's critical path P (tick record taken -> ack sent).
 
     The emulator may not step past the tick after next before a tick's ack (the lookahead's horizon), so
@@ -261,13 +289,18 @@ def critical_path_table(flights, results, floor, floor_critical) -> None:
             n = overlapped_ticks(period_s, horizon_s)
             p_floor = floor_critical[name, mode]
             c = n * period_s / floor[name, mode] * 1e6 - p_floor
-            p = [results[name, mode, label][0]["timing"].get("ack_after_tick_us_mean")
-                 for label in ("baseline", "new")]
-            measured = results[name, mode, "new"][0]["timing"]["real_time_factor"] / floor[name, mode]
+            p = [_median_or_none([plain["timing"].get("ack_after_tick_us_mean")
+                                  for plain, _ in results[name, mode, label]]) for label in ("baseline", "new")]
+            measured = measured_share[name, mode]
             needed = (p_floor + c) / FLOOR_SHARE_TARGET - c
             base = "-" if p[0] is None else f"{p[0]:.0f}"  # a revision before the measure: not reported
             print(f"{name:18} {mode:9} {n:2d} {base:>7} {p[1]:6.0f} {p_floor:7.0f} {c:6.0f} "
                   f"{(p_floor + c) / (p[1] + c):9.0%} {measured:8.0%} {needed:9.0f}")
+
+
+def _median_or_none(values: list) -> float | None:
+    """The median of the values, None if any is None (a revision before the measure)."""
+    return None if any(v is None for v in values) else statistics.median(values)
 
 
 def _per_tick(parts: dict) -> dict[str, float]:
@@ -343,10 +376,14 @@ def main() -> int:
     p.add_argument("--quick", action="store_true", help="skip the maze flights")
     p.add_argument("--baseline", default=BASELINE_REV, metavar="REV",
                    help=f"git revision of section 1's baseline (default {BASELINE_REV})")
+    p.add_argument("--rounds", type=int, default=1,
+                   help="flight pairs per flight and mode, each with its own floor runs; medians reported (default 1)")
     args = p.parse_args()
+    if args.rounds < 1:
+        p.error(f"--rounds must be >= 1, got {args.rounds}")
     with TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
-        lockstep_table(tmp, args.quick, args.baseline)
+        lockstep_table(tmp, args.quick, args.baseline, args.rounds)
         summary, log, ledger, emulator_line = realtime_flight(tmp)
         t = summary.get("timing", {})
         print("\n2. Realtime: ground station 500 Hz, emulator 1 kHz, hover flight")
