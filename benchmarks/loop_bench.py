@@ -28,7 +28,7 @@ Prints, from one run:
 
 With --rounds N each flight pair is flown N times, each time between its own floor runs, and section 1
 reports medians over the rounds with the share's range (single runs on these machines vary by more than
-a change: 55-70 % of the matched floor across three runs of one tree).
+a change: 55-70 % of the matched floor in attitude across three runs within an hour, the same flight code).
 
 Usage: python benchmarks/loop_bench.py [--quick] [--baseline REV] [--rounds N]
 """

@@ -81,7 +81,7 @@ def quat_normalize_positive_w(q: Quat) -> Quat:
 def quat_exp(rx: float, ry: float, rz: float) -> Quat:
     """Unit quaternion of the rotation vector (rx, ry, rz) rad: [cos(a/2), sin(a/2) r/a], a = |r|.
 
-    estimator/_eskf_kernels.c repeats this (with SMALL_ANGLE_RAD passed in): change both together."""
+    estimator/_eskf_kernels.c repeats this (reading SMALL_ANGLE_RAD when it loads): change both together."""
     angle = math.sqrt(rx * rx + ry * ry + rz * rz)
     if angle < SMALL_ANGLE_RAD:
         s = 0.5 - angle * angle / 48.0
