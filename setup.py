@@ -1,11 +1,14 @@
-"""The one compiled part of cfstack: estimator/_eskf_kernels.c (everything else is in pyproject.toml).
+"""The compiled parts of cfstack (everything else is in pyproject.toml): estimator/_eskf_kernels.c (the
+estimator's per-sample propagation) and simulator/_dynamics_kernels.c (the rigid body's RK4 step).
 
-Optional: where it cannot be built (no C compiler), pip installs cfstack without it and the estimator runs
-its Python twin (estimator/eskf_kernels.py), which gives the same results, slower.
--ffp-contract=off: no fused multiply-add, so the C gives the Python twin's bits on every CPU.
+Optional: where they cannot be built (no C compiler), pip installs cfstack without them and the estimator
+and the simulator run their Python twins (estimator/eskf_kernels.py, simulator/dynamics_kernels.py), which
+give the same results, slower.
+-ffp-contract=off: no fused multiply-add, so the C gives the Python twins' bits on every CPU.
 """
 
 from setuptools import Extension, setup
 
-setup(ext_modules=[Extension("estimator._eskf_kernels", ["estimator/_eskf_kernels.c"],
-                             extra_compile_args=["-ffp-contract=off"], optional=True)])
+setup(ext_modules=[Extension(name, [source], extra_compile_args=["-ffp-contract=off"], optional=True)
+                   for name, source in (("estimator._eskf_kernels", "estimator/_eskf_kernels.c"),
+                                        ("simulator._dynamics_kernels", "simulator/_dynamics_kernels.c"))])

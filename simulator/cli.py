@@ -200,6 +200,11 @@ def emulator_command(argv: list[str]) -> int:
                  "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, config.crtp_radio_profile.name,
                  radio_link, config.seed,
                  config.prefix, config.vehicles, emulator.lockstep.lookahead_horizon_s() * 1e3)
+        from simulator import dynamics_kernels  # loaded already (the dynamics): asked here for the warning only
+
+        if not dynamics_kernels.COMPILED:
+            log.warning("emulator: its compiled RK4 step was not built (no C compiler at pip install?): the Python "
+                        "twin runs, same results, slower (README: Lockstep speed)")
         emulator.run()
     if args.radio_ledger:
         emulator.write_radio_report(args.radio_ledger)

@@ -14,9 +14,10 @@ Physics (Mellinger & Kumar 2011 notation; body z = thrust axis):
     motor lag (tau > 0):  w_i' = (w_cmd_i - w_i) / tau  (solved exactly over the step)
     rotor drag (c > 0):   f_drag_xy = -c (sum_i w_i / w_hover) v_body_xy   (N; c per rotor at hover)
 Integrated by classical RK4 at a fixed step (tests check its fourth order against an independent
-solution). The state lives in plain Python floats and the RK4 stages are written out: a numpy call on a
-3-vector costs ~1 us, and a Python call per stage ~0.3 us, against a budget of a few us per step. The
-wrench terms (T/m, M/I, drag/m) are recomputed only when the rotor speeds change.
+solution): simulator.dynamics_kernels.rk4, compiled when it was built, else its Python twin (the same bits).
+The state lives in plain Python floats and the RK4 stages are written out: a numpy call on a 3-vector costs
+~1 us, and a Python call per stage ~0.3 us, against a budget of a few us per step. The wrench terms (T/m,
+M/I, drag/m) are recomputed only when the rotor speeds change.
 
 Floor (z = world bounds zmin, or 0 without a world): a resting vehicle stays put, level, at rest, until
 its thrust exceeds its weight. Touching the floor no faster than landing_speed_max_mps is a landing
@@ -39,6 +40,7 @@ from link.messages import CrashReport, Touched, TruthState
 from model.frames import IDENTITY, Quat, Vec3, level_with_yaw, quat_normalize
 from model.vehicle import GRAVITY_MPS2, Vehicle
 from model.world import World
+from simulator.dynamics_kernels import rk4, world_to_body
 
 _NO_DV: Vec3 = (0.0, 0.0, 0.0)  # no contact impulse since the last IMU sample (compared by identity)
 
@@ -91,7 +93,7 @@ class QuadrotorDynamics:
         self._contact_dv_enu: Vec3 = _NO_DV
 
         h = self.dt_s
-        self._h = (h, 0.5 * h, 0.25 * h, h / 6.0, h / 12.0, h * h / 6.0)  # see _rk4
+        self._h = (h, 0.5 * h, 0.25 * h, h / 6.0, h / 12.0, h * h / 6.0)  # see simulator.dynamics_kernels
         ixx, iyy, izz = self._ixx, self._iyy, self._izz
         self._gyro = ((izz - iyy) / ixx, (ixx - izz) / iyy, (iyy - ixx) / izz)  # w x I w, per inertia
         self._open_space = world is None  # nothing to meet but the floor
@@ -220,7 +222,7 @@ class QuadrotorDynamics:
         thrust_m, _, _, _, drag_m = self._u
         if drag_m == 0.0:
             return (0.0, 0.0, thrust_m)
-        vbx, vby, _ = _world_to_body(x[6], x[7], x[8], x[9], x[3], x[4], x[5])
+        vbx, vby, _ = world_to_body(x[6], x[7], x[8], x[9], x[3], x[4], x[5])
         return (-drag_m * vbx, -drag_m * vby, thrust_m)
 
     # --- stepping ---------------------------------------------------------------------------------
@@ -240,12 +242,12 @@ class QuadrotorDynamics:
             if w_end != w0:
                 um = self._inputs_for([c + (w - c) * dh for w, c in zip(w0, cmd, strict=True)])[1]
                 self._thrust_n, u1 = self._inputs_for(w_end)
-                self._w, self._u = w_end, u1  # the step's end state (_rk4 takes u0, um, u1 as arguments)
+                self._w, self._u = w_end, u1  # the step's end state (rk4 takes u0, um, u1 as arguments)
         if self.on_ground:
             if thrust_start <= self._weight:  # the floor holds it: no sinking, no sliding, stays level
                 return None
             self.on_ground = False
-        x = self._x = self._rk4(self._x, u0, um, u1)
+        x = self._x = rk4(self._x, u0, um, u1, self._h, self._gyro)
         if self._open_space and x[2] >= self.floor_z_m:
             return None  # no world, above the floor: nothing to meet
         return self._check_world(self.t_s)
@@ -260,112 +262,6 @@ class QuadrotorDynamics:
                         (a2[0] * s0 + a2[1] * s1 + a2[2] * s2 + a2[3] * s3) / self._iyy,
                         (a3[0] * s0 + a3[1] * s1 + a3[2] * s2 + a3[3] * s3) / self._izz,
                         self._drag_per_radps * (w[0] + w[1] + w[2] + w[3]) / self._mass)
-
-    def _rk4(self, x: list[float], u0, um, u1) -> list[float]:
-        """One classical RK4 step of the module docstring's equations, written out on local floats.
-
-        Stage i evaluates the derivatives at its attitude q_i, rates w_i and velocity v_i, with the
-        inputs u = (T/m, M/I, drag/m) at the start (stage 1), middle (2, 3) or end (4) of the step:
-            a_i = T/m R(q_i) e3 - g e3 (+ drag)                        (v')
-            p_i = Omega(w_i) q_i = (0, w_i) (x) q_i... as q (x) (0, w_i), q' = p / 2
-            e_i = M/I - c * (w_y w_z, w_z w_x, w_x w_y),  c = ((Izz - Iyy)/Ixx, (Ixx - Izz)/Iyy, (Iyy - Ixx)/Izz)
-        then x_{n+1} = x_n + h/6 (k1 + 2 k2 + 2 k3 + k4). Position's stage derivatives are the stage
-        velocities v, v + h/2 a1, v + h/2 a2, v + h a3, so its update folds to h v + h^2/6 (a1 + a2 + a3).
-        The quaternion is renormalised after the step (RK4 keeps |q| = 1 only to O(h^5)).
-        The scalar part of p is carried negated (n = -p_w) to save a negation per stage.
-        """
-        h, h2, hq, h6, h12, hh6 = self._h
-        cx, cy, cz = self._gyro
-        px, py, pz, vx, vy, vz, qw, qx, qy, qz, wx, wy, wz = x
-        # stage 1 at the start
-        tm, ex, ey, ez, dm = u0
-        t2, tg = 2.0 * tm, tm - GRAVITY_MPS2  # T/m R e3 - g e3 = (t2 (xz + wy), t2 (yz - wx), tg - t2 (x^2 + y^2))
-        a1x = t2 * (qx * qz + qw * qy)
-        a1y = t2 * (qy * qz - qw * qx)
-        a1z = tg - t2 * (qx * qx + qy * qy)
-        if dm != 0.0:
-            dx, dy, dz = _drag_world(qw, qx, qy, qz, vx, vy, vz, dm)
-            a1x, a1y, a1z = a1x + dx, a1y + dy, a1z + dz
-        n1 = qx * wx + qy * wy + qz * wz
-        p1x = qw * wx + qy * wz - qz * wy
-        p1y = qw * wy - qx * wz + qz * wx
-        p1z = qw * wz + qx * wy - qy * wx
-        e1x = ex - cx * wy * wz
-        e1y = ey - cy * wz * wx
-        e1z = ez - cz * wx * wy
-        # stage 2 at the middle, from stage 1's slopes
-        if um is not u0:
-            tm, ex, ey, ez, dm = um
-            t2, tg = 2.0 * tm, tm - GRAVITY_MPS2
-        sw, sx, sy, sz = qw - hq * n1, qx + hq * p1x, qy + hq * p1y, qz + hq * p1z
-        rx, ry, rz = wx + h2 * e1x, wy + h2 * e1y, wz + h2 * e1z
-        a2x = t2 * (sx * sz + sw * sy)
-        a2y = t2 * (sy * sz - sw * sx)
-        a2z = tg - t2 * (sx * sx + sy * sy)
-        if dm != 0.0:
-            dx, dy, dz = _drag_world(sw, sx, sy, sz, vx + h2 * a1x, vy + h2 * a1y, vz + h2 * a1z, dm)
-            a2x, a2y, a2z = a2x + dx, a2y + dy, a2z + dz
-        n2 = sx * rx + sy * ry + sz * rz
-        p2x = sw * rx + sy * rz - sz * ry
-        p2y = sw * ry - sx * rz + sz * rx
-        p2z = sw * rz + sx * ry - sy * rx
-        e2x = ex - cx * ry * rz
-        e2y = ey - cy * rz * rx
-        e2z = ez - cz * rx * ry
-        # stage 3 at the middle, from stage 2's slopes
-        sw, sx, sy, sz = qw - hq * n2, qx + hq * p2x, qy + hq * p2y, qz + hq * p2z
-        rx, ry, rz = wx + h2 * e2x, wy + h2 * e2y, wz + h2 * e2z
-        a3x = t2 * (sx * sz + sw * sy)
-        a3y = t2 * (sy * sz - sw * sx)
-        a3z = tg - t2 * (sx * sx + sy * sy)
-        if dm != 0.0:
-            dx, dy, dz = _drag_world(sw, sx, sy, sz, vx + h2 * a2x, vy + h2 * a2y, vz + h2 * a2z, dm)
-            a3x, a3y, a3z = a3x + dx, a3y + dy, a3z + dz
-        n3 = sx * rx + sy * ry + sz * rz
-        p3x = sw * rx + sy * rz - sz * ry
-        p3y = sw * ry - sx * rz + sz * rx
-        p3z = sw * rz + sx * ry - sy * rx
-        e3x = ex - cx * ry * rz
-        e3y = ey - cy * rz * rx
-        e3z = ez - cz * rx * ry
-        # stage 4 at the end, from stage 3's slopes (q + h q' = q + h/2 p)
-        if u1 is not um:
-            tm, ex, ey, ez, dm = u1
-            t2, tg = 2.0 * tm, tm - GRAVITY_MPS2
-        sw, sx, sy, sz = qw - h2 * n3, qx + h2 * p3x, qy + h2 * p3y, qz + h2 * p3z
-        rx, ry, rz = wx + h * e3x, wy + h * e3y, wz + h * e3z
-        a4x = t2 * (sx * sz + sw * sy)
-        a4y = t2 * (sy * sz - sw * sx)
-        a4z = tg - t2 * (sx * sx + sy * sy)
-        if dm != 0.0:
-            dx, dy, dz = _drag_world(sw, sx, sy, sz, vx + h * a3x, vy + h * a3y, vz + h * a3z, dm)
-            a4x, a4y, a4z = a4x + dx, a4y + dy, a4z + dz
-        n4 = sx * rx + sy * ry + sz * rz
-        p4x = sw * rx + sy * rz - sz * ry
-        p4y = sw * ry - sx * rz + sz * rx
-        p4z = sw * rz + sx * ry - sy * rx
-        e4x = ex - cx * ry * rz
-        e4y = ey - cy * rz * rx
-        e4z = ez - cz * rx * ry
-        # combine; q' = p / 2, so q takes h/12 of the p's
-        qw -= h12 * (n1 + 2.0 * (n2 + n3) + n4)
-        qx += h12 * (p1x + 2.0 * (p2x + p3x) + p4x)
-        qy += h12 * (p1y + 2.0 * (p2y + p3y) + p4y)
-        qz += h12 * (p1z + 2.0 * (p2z + p3z) + p4z)
-        k = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        sx, sy, sz = a1x + a2x + a3x, a1y + a2y + a3y, a1z + a2z + a3z  # a1 + 2 a2 + 2 a3 + a4 = s + a2 + a3 + a4
-        return [
-            px + h * vx + hh6 * sx,
-            py + h * vy + hh6 * sy,
-            pz + h * vz + hh6 * sz,
-            vx + h6 * (sx + a2x + a3x + a4x),
-            vy + h6 * (sy + a2y + a3y + a4y),
-            vz + h6 * (sz + a2z + a3z + a4z),
-            qw * k, qx * k, qy * k, qz * k,
-            wx + h6 * (e1x + 2.0 * (e2x + e3x) + e4x),
-            wy + h6 * (e1y + 2.0 * (e2y + e3y) + e4y),
-            wz + h6 * (e1z + 2.0 * (e2z + e3z) + e4z),
-        ]
 
     # --- contact ----------------------------------------------------------------------------------
     def _rest_on_floor(self) -> None:
@@ -382,7 +278,7 @@ class QuadrotorDynamics:
             return dv
         self._contact_dv_enu = _NO_DV
         x = self._x
-        return _world_to_body(x[6], x[7], x[8], x[9], *dv)
+        return world_to_body(x[6], x[7], x[8], x[9], *dv)
 
     def _rest_at(self, ground_z: float) -> None:
         x = self._x
@@ -463,25 +359,3 @@ class QuadrotorDynamics:
         self._x[3:6] = [0.0, 0.0, 0.0]
         self._x[10:13] = [0.0, 0.0, 0.0]
         return self.crash
-
-
-def _drag_world(qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, vz: float,
-                drag_m: float) -> Vec3:
-    """Rotor drag acceleration in world ENU: R(q) (-d v_body_x, -d v_body_y, 0) for drag d = c sum(w) / m."""
-    vbx, vby, _ = _world_to_body(qw, qx, qy, qz, vx, vy, vz)
-    fx, fy = -drag_m * vbx, -drag_m * vby
-    return ((1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy,
-            2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy,
-            2.0 * (qx * qz - qw * qy) * fx + 2.0 * (qy * qz + qw * qx) * fy)
-
-
-def _world_to_body(qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, vz: float) -> Vec3:
-    """R(q)^T v for a unit quaternion, written out (the rows of R^T are the columns of R)."""
-    return (
-        (1.0 - 2.0 * (qy * qy + qz * qz)) * vx + 2.0 * (qx * qy + qw * qz) * vy
-        + 2.0 * (qx * qz - qw * qy) * vz,
-        2.0 * (qx * qy - qw * qz) * vx + (1.0 - 2.0 * (qx * qx + qz * qz)) * vy
-        + 2.0 * (qy * qz + qw * qx) * vz,
-        2.0 * (qx * qz + qw * qy) * vx + 2.0 * (qy * qz - qw * qx) * vy
-        + (1.0 - 2.0 * (qx * qx + qy * qy)) * vz,
-    )

@@ -1,0 +1,112 @@
+"""The compiled RK4 step (simulator/_dynamics_kernels.c) gives its Python twin's bits
+(simulator/dynamics_kernels.py), step by step on random states and over whole flights (issue 19: behaviour
+unchanged). The twin's physics is tests/simulator/test_dynamics.py's (fourth order against an independent
+solution, with and without rotor drag)."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+from link.messages import AttitudeTarget, ExternalPose, ThrustMoment
+from model.frames import quat_from_euler_zyx
+from model.vehicle import load_mocap_room, load_vehicle
+from simulator import dynamics, dynamics_kernels
+from simulator.vehicle_sim import SimVehicle
+
+needs_compiled = pytest.mark.skipif(
+    not dynamics_kernels.COMPILED,
+    reason="simulator/_dynamics_kernels.c was not built (no C compiler at pip install): the Python twin runs")
+
+
+def _bits(values) -> bytes:
+    return struct.pack(f"{len(values)}d", *values)
+
+
+def _random_step(rng: np.random.Generator):
+    """A state, three wrenches (sometimes the same object, as the vehicle passes them), the step constants and
+    gyroscopic coefficients, drawn wide: tumbling, fast, with and without rotor drag."""
+    q = quat_from_euler_zyx(*rng.uniform(-np.pi, np.pi, 3))
+    x = [*rng.normal(scale=5.0, size=3), *rng.normal(scale=3.0, size=3), *q, *rng.normal(scale=10.0, size=3)]
+    x = [float(v) for v in x]
+
+    def wrench():
+        drag = float(rng.uniform(0.0, 0.5)) if rng.random() < 0.5 else 0.0
+        return (float(rng.uniform(0.0, 30.0)), *(float(v) for v in rng.normal(scale=50.0, size=3)), drag)
+
+    u0 = wrench()
+    um = u0 if rng.random() < 0.5 else wrench()
+    u1 = um if rng.random() < 0.5 else wrench()
+    h = float(rng.choice([0.001, 0.002, 0.0005]))
+    steps = (h, 0.5 * h, 0.25 * h, h / 6.0, h / 12.0, h * h / 6.0)
+    gyro = tuple(float(v) for v in rng.normal(scale=0.5, size=3))
+    return x, u0, um, u1, steps, gyro
+
+
+@needs_compiled
+def test_compiled_step_is_the_python_twins_bit_for_bit():
+    rng = np.random.default_rng(11)
+    dragged = 0
+    for _ in range(20000):
+        args = _random_step(rng)
+        compiled = dynamics_kernels.rk4_compiled(*args)
+        twin = dynamics_kernels.rk4_python(*args)
+        assert type(compiled) is list and len(compiled) == 13
+        assert _bits(compiled) == _bits(twin), args
+        dragged += any(u[4] != 0.0 for u in args[1:4])
+    assert dragged > 5000  # the drag branches ran too
+
+
+@needs_compiled
+def test_compiled_step_refuses_bad_arguments_with_one_error():
+    x = [0.0] * 6 + [1.0, 0.0, 0.0, 0.0] + [0.0] * 3
+    u = (9.81, 0.0, 0.0, 0.0, 0.0)
+    steps, gyro = (0.001, 0.0005, 0.00025, 0.001 / 6, 0.001 / 12, 1e-6 / 6), (0.1, -0.1, 0.0)
+    rk4 = dynamics_kernels.rk4_compiled
+    with pytest.raises(ValueError, match="x: expected 13"):
+        rk4(x[:12], u, u, u, steps, gyro)
+    with pytest.raises(ValueError, match="u1: expected 5"):
+        rk4(x, u, u, u[:4], steps, gyro)
+    with pytest.raises(TypeError):
+        rk4(x, u, u, ("a", 0.0, 0.0, 0.0, 0.0), steps, gyro)
+    with pytest.raises(TypeError):
+        rk4(x, u, u, u, steps)
+    assert rk4(x, u, u, u, steps, gyro) == dynamics_kernels.rk4_python(x, u, u, u, steps, gyro)
+
+
+def _fly(vehicle_name: str, mode: str, steps: int) -> list[bytes]:
+    """Every physics step's truth of a faithful vehicle flown by fixed setpoints that tilt and turn it."""
+    vehicle = load_vehicle(vehicle_name)
+    sim = SimVehicle(vehicle, np.random.default_rng(3), mocap_room=load_mocap_room("vicon"),
+                     initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True, firmware="crazyflie")
+    out = []
+    for k in range(steps):
+        t = sim.t_s
+        if k % 10 == 0:
+            truth = sim.truth
+            if mode == "attitude":
+                sim.handle_uplink(ExternalPose(t, truth.position_enu_m, truth.attitude_wxyz), t)
+                tilt = quat_from_euler_zyx(0.3 * np.sin(t), 0.2 * np.cos(2.0 * t), 0.1)
+                sim.handle_uplink(AttitudeTarget(t, 1.1 * vehicle.weight_n, tuple(tilt)), t)
+            else:
+                wobble = (2e-5 * np.sin(5.0 * t), -2e-5 * np.cos(3.0 * t), 1e-5)  # N m: sways, never tumbles
+                sim.handle_uplink(ThrustMoment(t, 1.05 * vehicle.weight_n, wobble), t)
+        sim.step()
+        sim.pop_outputs()
+        truth = sim.truth
+        out.append(_bits([*truth.position_enu_m, *truth.velocity_enu_mps, *truth.attitude_wxyz,
+                          *truth.rate_flu_radps]))
+    return out
+
+
+@needs_compiled
+@pytest.mark.parametrize(("vehicle", "mode"), [("cf21", "attitude"), ("cf2x", "moments")])  # cf2x: rotor drag
+def test_a_flight_on_the_compiled_step_is_the_flight_on_the_twin(monkeypatch, vehicle, mode):
+    assert load_vehicle("cf2x").rotor_drag_coefficient > 0.0
+    compiled = _fly(vehicle, mode, 3000)
+    monkeypatch.setattr(dynamics, "rk4", dynamics_kernels.rk4_python)
+    twin = _fly(vehicle, mode, 3000)
+    assert compiled == twin
+    assert len(set(compiled)) == len(compiled)  # airborne and moving every step: no two states compared alike
