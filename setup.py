@@ -4,11 +4,13 @@ estimator's per-sample propagation) and simulator/_dynamics_kernels.c (the rigid
 Optional: where they cannot be built (no C compiler), pip installs cfstack without them and the estimator
 and the simulator run their Python twins (estimator/eskf_kernels.py, simulator/dynamics_kernels.py), which
 give the same results, slower.
+model/_kernels.h holds what both read from Python (included, so listed in depends: rebuilt and shipped).
 -ffp-contract=off: no fused multiply-add, so the C gives the Python twins' bits on every CPU.
 """
 
 from setuptools import Extension, setup
 
-setup(ext_modules=[Extension(name, [source], extra_compile_args=["-ffp-contract=off"], optional=True)
+setup(ext_modules=[Extension(name, [source], depends=["model/_kernels.h"], extra_compile_args=["-ffp-contract=off"],
+                             optional=True)
                    for name, source in (("estimator._eskf_kernels", "estimator/_eskf_kernels.c"),
                                         ("simulator._dynamics_kernels", "simulator/_dynamics_kernels.c"))])

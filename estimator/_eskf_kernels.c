@@ -12,8 +12,7 @@ one IEEE double operation at a time (setup.py builds this file with -ffp-contrac
 is fused), and sqrt, sin and cos are the C library's, which CPython's math module calls too.
 tests/estimator/test_eskf_kernels.py checks the bits against the twin. */
 
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float */
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -21,27 +20,6 @@ tests/estimator/test_eskf_kernels.py checks the bits against the twin. */
 #define N_STATE 16
 #define N_TRANSITION 48
 #define F_SIZE (15 * 15)
-
-static int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *name) {
-    PyObject *fast = PySequence_Fast(seq, name);
-    if (fast == NULL) return -1;
-    if (PySequence_Fast_GET_SIZE(fast) != n) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd numbers, got %zd", name, n,
-                     PySequence_Fast_GET_SIZE(fast));
-        Py_DECREF(fast);
-        return -1;
-    }
-    PyObject **items = PySequence_Fast_ITEMS(fast);
-    for (Py_ssize_t i = 0; i < n; i++) {
-        out[i] = PyFloat_AsDouble(items[i]);
-        if (out[i] == -1.0 && PyErr_Occurred()) {
-            Py_DECREF(fast);
-            return -1;
-        }
-    }
-    Py_DECREF(fast);
-    return 0;
-}
 
 /* model.frames.quat_to_rows */
 static void quat_to_rows(const double q[4], double r[9]) {
@@ -224,13 +202,6 @@ static struct PyModuleDef module = {
 };
 
 PyMODINIT_FUNC PyInit__eskf_kernels(void) {
-    PyObject *frames = PyImport_ImportModule("model.frames");
-    if (frames == NULL) return NULL;
-    PyObject *threshold = PyObject_GetAttrString(frames, "SMALL_ANGLE_RAD");
-    Py_DECREF(frames);
-    if (threshold == NULL) return NULL;
-    small_angle_rad = PyFloat_AsDouble(threshold);
-    Py_DECREF(threshold);
-    if (PyErr_Occurred()) return NULL;
+    if (read_module_float("model.frames", "SMALL_ANGLE_RAD", &small_angle_rad) < 0) return NULL;
     return PyModule_Create(&module);
 }

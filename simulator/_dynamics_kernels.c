@@ -13,35 +13,13 @@ The twin reads a middle or end wrench only when it is another object than the on
 the same either way, so this file always reads them. tests/simulator/test_dynamics_kernels.py checks the
 bits against the twin. */
 
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float */
 #include <math.h>
 
 #define N_STATE 13
 #define N_WRENCH 5
 
 static double gravity_mps2; /* model.vehicle.GRAVITY_MPS2 */
-
-static int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *name) {
-    PyObject *fast = PySequence_Fast(seq, name);
-    if (fast == NULL) return -1;
-    if (PySequence_Fast_GET_SIZE(fast) != n) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd numbers, got %zd", name, n,
-                     PySequence_Fast_GET_SIZE(fast));
-        Py_DECREF(fast);
-        return -1;
-    }
-    PyObject **items = PySequence_Fast_ITEMS(fast);
-    for (Py_ssize_t i = 0; i < n; i++) {
-        out[i] = PyFloat_AsDouble(items[i]);
-        if (out[i] == -1.0 && PyErr_Occurred()) {
-            Py_DECREF(fast);
-            return -1;
-        }
-    }
-    Py_DECREF(fast);
-    return 0;
-}
 
 /* dynamics_kernels.drag_world: R(q) (-d v_body_x, -d v_body_y, 0), v_body = world_to_body(q, v) */
 static void drag_world(double qw, double qx, double qy, double qz, double vx, double vy, double vz,
@@ -194,13 +172,6 @@ static struct PyModuleDef module = {
 };
 
 PyMODINIT_FUNC PyInit__dynamics_kernels(void) {
-    PyObject *vehicle = PyImport_ImportModule("model.vehicle");
-    if (vehicle == NULL) return NULL;
-    PyObject *g = PyObject_GetAttrString(vehicle, "GRAVITY_MPS2");
-    Py_DECREF(vehicle);
-    if (g == NULL) return NULL;
-    gravity_mps2 = PyFloat_AsDouble(g);
-    Py_DECREF(g);
-    if (PyErr_Occurred()) return NULL;
+    if (read_module_float("model.vehicle", "GRAVITY_MPS2", &gravity_mps2) < 0) return NULL;
     return PyModule_Create(&module);
 }

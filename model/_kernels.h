@@ -1,0 +1,45 @@
+/* What the compiled kernels (estimator/_eskf_kernels.c, simulator/_dynamics_kernels.c) share: reading
+   Python numbers into C doubles. Included by both; setup.py lists it in each extension's depends. */
+
+#ifndef CFSTACK_KERNELS_H
+#define CFSTACK_KERNELS_H
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+/* n numbers of a sequence into out; -1 with ValueError (wrong length) or TypeError (not a number) set */
+static int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *name) {
+    PyObject *fast = PySequence_Fast(seq, name);
+    if (fast == NULL) return -1;
+    if (PySequence_Fast_GET_SIZE(fast) != n) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd numbers, got %zd", name, n,
+                     PySequence_Fast_GET_SIZE(fast));
+        Py_DECREF(fast);
+        return -1;
+    }
+    PyObject **items = PySequence_Fast_ITEMS(fast);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        out[i] = PyFloat_AsDouble(items[i]);
+        if (out[i] == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(fast);
+            return -1;
+        }
+    }
+    Py_DECREF(fast);
+    return 0;
+}
+
+/* module.name as a double, read once when a kernel module loads (a constant it shares with its twin);
+   -1 with the import or attribute error set */
+static int read_module_float(const char *module, const char *name, double *out) {
+    PyObject *mod = PyImport_ImportModule(module);
+    if (mod == NULL) return -1;
+    PyObject *value = PyObject_GetAttrString(mod, name);
+    Py_DECREF(mod);
+    if (value == NULL) return -1;
+    *out = PyFloat_AsDouble(value);
+    Py_DECREF(value);
+    return PyErr_Occurred() ? -1 : 0;
+}
+
+#endif
