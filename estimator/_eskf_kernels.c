@@ -190,9 +190,259 @@ static PyObject *propagate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     return float_tuple(x1, N_STATE);
 }
 
+/* ------------------------------------------------------------------ covariance algebra (eskf_kernels'
+   predict_covariance, update_covariance, reset_covariance, multiply): dense loops, every sum taken in
+   index order from its first term, every symmetric result computed on and above the diagonal and copied
+   below it. No BLAS: the same bits on every CPU. */
+
+#define N_ERR 15
+#define N_MEAS 6
+
+/* A C-contiguous float64 buffer of n doubles; -1 with ValueError naming it otherwise */
+static int get_matrix(PyObject *obj, Py_buffer *view, Py_ssize_t n, int writable, const char *name) {
+    if (PyObject_GetBuffer(obj, view, (writable ? PyBUF_WRITABLE : 0) | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+        return -1;
+    if (view->itemsize != 8 || view->len != n * 8 || strcmp(view->format, "d") != 0) {
+        PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous float64 array of %zd numbers", name, n);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+static void release_all(Py_buffer *views, int n) {
+    for (int i = 0; i < n; i++) PyBuffer_Release(&views[i]);
+}
+
+/* Copy the upper triangle of a 15x15 matrix onto its lower one */
+static void mirror_upper(double *m) {
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = i + 1; j < N_ERR; j++) m[j * N_ERR + i] = m[i * N_ERR + j];
+}
+
+/* out = F P F' + Q */
+static void predict_kernel(const double *P, const double *F, const double *Q, double *out) {
+    double M[N_ERR * N_ERR];
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = 0; j < N_ERR; j++) {
+            double acc = F[i * N_ERR] * P[j];
+            for (int k = 1; k < N_ERR; k++) acc = acc + F[i * N_ERR + k] * P[k * N_ERR + j];
+            M[i * N_ERR + j] = acc;
+        }
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = i; j < N_ERR; j++) {
+            double acc = M[i * N_ERR] * F[j * N_ERR];
+            for (int k = 1; k < N_ERR; k++) acc = acc + M[i * N_ERR + k] * F[j * N_ERR + k];
+            out[i * N_ERR + j] = acc + Q[i * N_ERR + j];
+        }
+    mirror_upper(out);
+}
+
+/* predict_covariance(P, F, Q, out) -> None */
+static PyObject *predict_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 4) {
+        PyErr_Format(PyExc_TypeError, "predict_covariance takes 4 arguments (%zd given)", nargs);
+        return NULL;
+    }
+    Py_buffer v[4];
+    const char *names[4] = {"P", "F", "Q", "out"};
+    for (int a = 0; a < 4; a++)
+        if (get_matrix(args[a], &v[a], N_ERR * N_ERR, a == 3, names[a]) < 0) {
+            release_all(v, a);
+            return NULL;
+        }
+    predict_kernel(v[0].buf, v[1].buf, v[2].buf, v[3].buf);
+    release_all(v, 4);
+    Py_RETURN_NONE;
+}
+
+/* Lower Cholesky factor L of the 6x6 S (row-major); 0 if S is not positive definite */
+static int cholesky(const double *S, double *L) {
+    memset(L, 0, sizeof(double) * N_MEAS * N_MEAS);
+    for (int j = 0; j < N_MEAS; j++) {
+        double d = S[j * N_MEAS + j];
+        for (int k = 0; k < j; k++) d = d - L[j * N_MEAS + k] * L[j * N_MEAS + k];
+        if (!(d > 0.0)) return 0; /* also catches NaN */
+        double ljj = sqrt(d);
+        L[j * N_MEAS + j] = ljj;
+        for (int i = j + 1; i < N_MEAS; i++) {
+            double acc = S[i * N_MEAS + j];
+            for (int k = 0; k < j; k++) acc = acc - L[i * N_MEAS + k] * L[j * N_MEAS + k];
+            L[i * N_MEAS + j] = acc / ljj;
+        }
+    }
+    return 1;
+}
+
+/* update_covariance(P, z, r, index, P_out, dx_out) -> d2 (NaN: S not positive definite, outputs untouched) */
+static PyObject *update_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 6) {
+        PyErr_Format(PyExc_TypeError, "update_covariance takes 6 arguments (%zd given)", nargs);
+        return NULL;
+    }
+    double z[N_MEAS], r[N_MEAS], index_values[N_MEAS];
+    int sel[N_MEAS];
+    if (read_floats(args[1], z, N_MEAS, "z") < 0 || read_floats(args[2], r, N_MEAS, "r") < 0
+        || read_floats(args[3], index_values, N_MEAS, "index") < 0)
+        return NULL;
+    for (int m = 0; m < N_MEAS; m++) {
+        sel[m] = (int)index_values[m];
+        if (sel[m] < 0 || sel[m] >= N_ERR || (double)sel[m] != index_values[m]) {
+            PyErr_SetString(PyExc_ValueError, "index: six state indices in 0..14");
+            return NULL;
+        }
+    }
+    Py_buffer v[3];
+    if (get_matrix(args[0], &v[0], N_ERR * N_ERR, 0, "P") < 0) return NULL;
+    if (get_matrix(args[4], &v[1], N_ERR * N_ERR, 1, "P_out") < 0) {
+        release_all(v, 1);
+        return NULL;
+    }
+    if (get_matrix(args[5], &v[2], N_ERR, 1, "dx_out") < 0) {
+        release_all(v, 2);
+        return NULL;
+    }
+    const double *P = v[0].buf;
+    double *P_out = v[1].buf, *dx = v[2].buf;
+    double S[N_MEAS * N_MEAS], L[N_MEAS * N_MEAS];
+    for (int m = 0; m < N_MEAS; m++)
+        for (int n = 0; n < N_MEAS; n++) S[m * N_MEAS + n] = P[sel[m] * N_ERR + sel[n]] + (m == n ? r[m] : 0.0);
+    if (!cholesky(S, L)) {
+        release_all(v, 3);
+        return PyFloat_FromDouble(NAN);
+    }
+    /* Solve S X = B, B = [(P H')' | z] (6 x 16): forward W = L^-1 B, then back X = L'^-1 W */
+    enum { NB = N_ERR + 1 };
+    double W[N_MEAS][NB], X[N_MEAS][NB];
+    for (int m = 0; m < N_MEAS; m++) {
+        double lmm = L[m * N_MEAS + m];
+        for (int c = 0; c < NB; c++) {
+            double acc = c < N_ERR ? P[c * N_ERR + sel[m]] : z[m];
+            for (int k = 0; k < m; k++) acc = acc - L[m * N_MEAS + k] * W[k][c];
+            W[m][c] = acc / lmm;
+        }
+    }
+    for (int m = N_MEAS - 1; m >= 0; m--) {
+        double lmm = L[m * N_MEAS + m];
+        for (int c = 0; c < NB; c++) {
+            double acc = W[m][c];
+            for (int k = m + 1; k < N_MEAS; k++) acc = acc - L[k * N_MEAS + m] * X[k][c];
+            X[m][c] = acc / lmm;
+        }
+    }
+    double d2 = W[0][N_ERR] * W[0][N_ERR];
+    for (int m = 1; m < N_MEAS; m++) d2 = d2 + W[m][N_ERR] * W[m][N_ERR];
+    /* K[i][m] = X[m][i]; dx = K z */
+    for (int i = 0; i < N_ERR; i++) {
+        double acc = X[0][i] * z[0];
+        for (int m = 1; m < N_MEAS; m++) acc = acc + X[m][i] * z[m];
+        dx[i] = acc;
+    }
+    /* Joseph form: A = (I - K H) P, P_out = A (I - K H)' + K R K' */
+    double A[N_ERR * N_ERR];
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = 0; j < N_ERR; j++) {
+            double acc = P[i * N_ERR + j];
+            for (int m = 0; m < N_MEAS; m++) acc = acc - X[m][i] * P[sel[m] * N_ERR + j];
+            A[i * N_ERR + j] = acc;
+        }
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = i; j < N_ERR; j++) {
+            double acc = A[i * N_ERR + j];
+            for (int m = 0; m < N_MEAS; m++) acc = acc - A[i * N_ERR + sel[m]] * X[m][j];
+            double krk = X[0][i] * r[0] * X[0][j];
+            for (int m = 1; m < N_MEAS; m++) krk = krk + X[m][i] * r[m] * X[m][j];
+            P_out[i * N_ERR + j] = acc + krk;
+        }
+    mirror_upper(P_out);
+    release_all(v, 3);
+    return PyFloat_FromDouble(d2);
+}
+
+/* reset_covariance(P, dtheta, out) -> None: out = G P G', G = I but G_theta = I - [dtheta/2]x (rows and
+   columns 6..8) */
+static PyObject *reset_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 3) {
+        PyErr_Format(PyExc_TypeError, "reset_covariance takes 3 arguments (%zd given)", nargs);
+        return NULL;
+    }
+    double dtheta[3];
+    if (read_floats(args[1], dtheta, 3, "dtheta") < 0) return NULL;
+    Py_buffer v[2];
+    if (get_matrix(args[0], &v[0], N_ERR * N_ERR, 0, "P") < 0) return NULL;
+    if (get_matrix(args[2], &v[1], N_ERR * N_ERR, 1, "out") < 0) {
+        release_all(v, 1);
+        return NULL;
+    }
+    const double *P = v[0].buf;
+    double *out = v[1].buf;
+    double hx = 0.5 * dtheta[0], hy = 0.5 * dtheta[1], hz = 0.5 * dtheta[2];
+    double G[3][3] = {{1.0, hz, -hy}, {-hz, 1.0, hx}, {hy, -hx, 1.0}};
+    double C[N_ERR * N_ERR]; /* G P: rows 6..8 mixed, the others P's */
+    memcpy(C, P, sizeof(C));
+    for (int a = 0; a < 3; a++)
+        for (int j = 0; j < N_ERR; j++) {
+            double acc = G[a][0] * P[6 * N_ERR + j];
+            for (int b = 1; b < 3; b++) acc = acc + G[a][b] * P[(6 + b) * N_ERR + j];
+            C[(6 + a) * N_ERR + j] = acc;
+        }
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = i; j < N_ERR; j++) {
+            if (j < 6 || j > 8) {
+                out[i * N_ERR + j] = C[i * N_ERR + j];
+                continue;
+            }
+            int a = j - 6;
+            double acc = C[i * N_ERR + 6] * G[a][0];
+            for (int b = 1; b < 3; b++) acc = acc + C[i * N_ERR + 6 + b] * G[a][b];
+            out[i * N_ERR + j] = acc;
+        }
+    mirror_upper(out);
+    release_all(v, 2);
+    Py_RETURN_NONE;
+}
+
+/* multiply(A, B, out) -> None: out = A B (15x15) */
+static PyObject *multiply(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 3) {
+        PyErr_Format(PyExc_TypeError, "multiply takes 3 arguments (%zd given)", nargs);
+        return NULL;
+    }
+    Py_buffer v[3];
+    const char *names[3] = {"A", "B", "out"};
+    for (int a = 0; a < 3; a++)
+        if (get_matrix(args[a], &v[a], N_ERR * N_ERR, a == 2, names[a]) < 0) {
+            release_all(v, a);
+            return NULL;
+        }
+    const double *A = v[0].buf, *B = v[1].buf;
+    double product[N_ERR * N_ERR]; /* out may be A or B */
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = 0; j < N_ERR; j++) {
+            double acc = A[i * N_ERR] * B[j];
+            for (int k = 1; k < N_ERR; k++) acc = acc + A[i * N_ERR + k] * B[k * N_ERR + j];
+            product[i * N_ERR + j] = acc;
+        }
+    memcpy(v[2].buf, product, sizeof(product));
+    release_all(v, 3);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"propagate", (PyCFunction)(void (*)(void))propagate, METH_FASTCALL,
      "propagate(x, f0, w0, f1, w1, dt, g, F, index) -> x1 (estimator.eskf_kernels.propagate)"},
+    {"predict_covariance", (PyCFunction)(void (*)(void))predict_covariance, METH_FASTCALL,
+     "predict_covariance(P, F, Q, out): out = F P F' + Q (estimator.eskf_kernels)"},
+    {"update_covariance", (PyCFunction)(void (*)(void))update_covariance, METH_FASTCALL,
+     "update_covariance(P, z, r, index, P_out, dx_out) -> d2 (estimator.eskf_kernels)"},
+    {"reset_covariance", (PyCFunction)(void (*)(void))reset_covariance, METH_FASTCALL,
+     "reset_covariance(P, dtheta, out): out = G P G' (estimator.eskf_kernels)"},
+    {"multiply", (PyCFunction)(void (*)(void))multiply, METH_FASTCALL,
+     "multiply(A, B, out): out = A B (estimator.eskf_kernels)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -23,16 +23,19 @@ Process noise from the continuous densities (s_a, s_g, s_ba, s_bg) of the sensor
 Mocap measurement: z = [p_m - p ; Log(q^* (x) q_m)] = H dx + n, H = [I 0 0 0 0; 0 0 I 0 0],
     R = diag(s_p^2 I3, s_theta^2 I3) of the sensor spec (times noise.mocap_noise_variance_scale).
 
-The Kalman steps are filterpy's (filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state),
-made by filterpy's own numpy calls in filterpy's order without the copies it keeps for its callers, so with
-its bits (tests/estimator/test_eskf_kernels.py checks them against filterpy; filterpy itself is not imported
-here: it imports scipy.stats, 0.24 s of a ground station's start-up): predict P = F P F' + Q;
-update y = z - H x, S = H P H' + R, S^-1 (LAPACK gesv: numpy.linalg.inv runs the same routine behind ~7 us
-of argument checks), K = P H' S^-1, x = x + K y and the Joseph form P = (I - K H) P (I - K H)' + K R K'.
+The Kalman steps are filterpy's (filterpy.kalman.KalmanFilter, dim_x = 15, dim_z = 6, x = the error state):
+predict P = F P F' + Q; update y = z - H x (x = 0: y = z), S = H P H' + R, K = P H' S^-1, x = x + K y and the
+Joseph form P = (I - K H) P (I - K H)' + K R K'. They run in estimator.eskf_kernels' fixed-order kernels
+(compiled when built, else their Python twins: the same bits), not numpy's matrix products: those go to
+BLAS, which picks its kernel by CPU at run time and with it the order and fusing of every sum, so the
+filter's last bits - and a lockstep flight's log - depended on the machine (issue 19 documents the change;
+tests/estimator/test_eskf_kernels.py checks the kernels against filterpy to rounding and a filtered flight
+under three OpenBLAS kernels bit for bit). Every covariance the kernels give is exactly symmetric (computed
+on and above the diagonal, copied below); S^-1 comes from S's Cholesky factor L (S is positive definite;
+the gate's d^2 = |L^-1 y|^2 is never negative).
 What this module does around them: the nominal propagation above and F (the identity, its 48 other entries
-written by estimator.eskf_kernels.propagate, compiled when it was built, else its Python twin: the same
-bits), Q (depends on dt alone: cached per interval length), forming z from the nominal state, the
-Mahalanobis gate d^2 = y' S^-1 y on the update's y and S^-1 (a rejected frame keeps the prior P: the
+written by estimator.eskf_kernels.propagate), Q (depends on dt alone: cached per interval length), forming
+z from the nominal state, the Mahalanobis gate d^2 = y' S^-1 y (a rejected frame keeps the prior P: the
 update is discarded), injecting dx into the nominal state (q <- q (x) Exp(dtheta)), the ESKF reset
 P <- G P G' with G_theta = I - [dtheta/2]x (Sola eq. 287), the error state back to 0, and the time
 bookkeeping below.
@@ -78,10 +81,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.linalg.lapack import dgesv as lapack_gesv
 from scipy.special import gammaincinv
 
-from estimator.eskf_kernels import TRANSITION_ENTRIES, propagate
+from estimator.eskf_kernels import (
+    TRANSITION_ENTRIES,
+    multiply,
+    predict_covariance,
+    propagate,
+    reset_covariance,
+    update_covariance,
+)
 from estimator.sensor_spec import SensorSpec
 from link.messages import ImuSample, MocapPose
 from model.config import Params, resolve
@@ -105,7 +114,7 @@ POSITION, VELOCITY, ATTITUDE, ACCEL_BIAS, GYRO_BIAS = (slice(i, i + 3) for i in 
 N_ERROR = 15
 N_MOCAP = 6
 _IDENTITY_ERROR = np.eye(N_ERROR)
-_IDENTITY_MOCAP = np.eye(N_MOCAP)  # right-hand side of the gesv inverse (never overwritten)
+MOCAP_STATES = (0, 1, 2, 6, 7, 8)  # the error states a mocap frame measures (H's columns): dp, dtheta
 
 
 def _flat(cells) -> np.ndarray:
@@ -121,8 +130,6 @@ assert len(_F_INDEX) == TRANSITION_ENTRIES
 # Q's non-zero entries in _process_noise's order: pp, pv and vp (per axis), then the diagonal from vv on.
 _Q_INDEX = _flat([(i, i) for i in range(3)] + [(i, 3 + i) for i in range(3)] + [(3 + i, i) for i in range(3)]
                  + [(i, i) for i in range(3, N_ERROR)])
-# The attitude block of the reset Jacobian G (row-major), in _inject.
-_G_INDEX = _flat([(r, c) for r in range(6, 9) for c in range(6, 9)])
 # Interval lengths whose Q is kept: IMU intervals take a handful of values, mocap frames split them at
 # arbitrary times, so the cache is cleared when full.
 _Q_CACHE_SIZE = 64
@@ -263,14 +270,11 @@ class ErrorStateKF:
         if var_p <= 0.0 or var_t <= 0.0:
             raise UserError(f"sensor spec '{sensors.name}': the mocap sigmas must be positive for the estimator")
         self._R = np.diag([var_p] * 3 + [var_t] * 3)
-        self._H = np.zeros((N_MOCAP, N_ERROR))
-        self._H[0:3, POSITION] = np.eye(3)
-        self._H[3:6, ATTITUDE] = np.eye(3)
+        self._r_diag = (var_p,) * 3 + (var_t,) * 3
         self._gate_d2 = chi2_quantile(prm.gate_chi2_probability, N_MOCAP)
         bias_var = [sensors.accel_bias_initial_sigma**2] * 3 + [sensors.gyro_bias_initial_sigma**2] * 3
         velocity_var = [prm.initial_velocity_sigma_mps**2] * 3
         self._P0_diag = np.array([var_p] * 3 + velocity_var + [var_t] * 3 + bias_var)
-        self._zero_dx = np.zeros((N_ERROR, 1))  # the error state before an update (never written in place)
         self._posterior: tuple[np.ndarray, np.ndarray] | None = None  # (dx, P) of the last _innovate
         self._q_cache: dict[float, np.ndarray] = {}
         self._reset_bookkeeping()
@@ -555,12 +559,12 @@ class ErrorStateKF:
 
     @staticmethod
     def _predict(P: np.ndarray, transition: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """filterpy predict's covariance step over one stored (F, Q): P' = F P F' + Q, by the same numpy
-        calls, so the same bits (its fading factor alpha^2 is 1 here: an exact multiply). The rest of
-        KalmanFilter.predict - x = F x on the zero error state, copies of the priors - is a third of its
-        time and unused (tests/estimator/test_eskf_kernels.py checks the bits against filterpy)."""
+        """The predict's covariance step over one stored (F, Q): P' = F P F' + Q, into a new array
+        (estimator.eskf_kernels.predict_covariance)."""
         F, Q = transition
-        return np.dot(np.dot(F, P), F.T) + Q
+        out = np.empty((N_ERROR, N_ERROR))
+        predict_covariance(P, F, Q, out)
+        return out
 
     def _signal_at(self, j: int) -> tuple[tuple, tuple]:
         """IMU signal at a mocap node: linear between the node before and the next IMU sample."""
@@ -612,42 +616,29 @@ class ErrorStateKF:
         return status
 
     def _innovate(self, x: tuple, P: np.ndarray, node: _Node) -> float:
-        """The update with the mocap residual; returns d^2 = y' S^-1 y (posterior kept for _inject)."""
+        """The update with the mocap residual z (estimator.eskf_kernels.update_covariance); returns
+        d^2 = z' S^-1 z (posterior kept for _inject)."""
         dtheta = attitude_error(x[6:10], node.attitude)
         px, py, pz = node.position
-        z = np.array((px - x[0], py - x[1], pz - x[2], *dtheta)).reshape(N_MOCAP, 1)
-        dx, P_post, y, SI = self._update(P, z)
+        z = (px - x[0], py - x[1], pz - x[2], *dtheta)
+        P_post = np.empty((N_ERROR, N_ERROR))
+        dx = np.empty(N_ERROR)
+        d2 = update_covariance(P, z, self._r_diag, MOCAP_STATES, P_post, dx)
+        if math.isnan(d2):
+            raise np.linalg.LinAlgError("mocap update: innovation covariance H P H' + R not positive definite")
         self._posterior = dx, P_post
-        y = y[:, 0]
-        return float(y @ SI @ y)
-
-    def _update(self, P: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """filterpy KalmanFilter.update(z, H=H) on the zero error state with P, by its own numpy calls in its
-        order, so the same bits: returns the posterior dx and P, the residual y and S^-1. Not filterpy's own
-        call, so that the ground station does not import filterpy (it imports scipy.stats: 0.24 s of every
-        start-up); it also skips the copies filterpy keeps for its callers (~1 of its ~13 us here).
-        tests/estimator/test_eskf_kernels.py checks the bits against filterpy."""
-        H, R = self._H, self._R
-        y = z - np.dot(H, self._zero_dx)
-        PHT = np.dot(P, H.T)
-        SI = _inverse(np.dot(H, PHT) + R)
-        K = np.dot(PHT, SI)
-        dx = self._zero_dx + np.dot(K, y)
-        I_KH = _IDENTITY_ERROR - np.dot(K, H)
-        return dx, np.dot(np.dot(I_KH, P), I_KH.T) + np.dot(np.dot(K, R), K.T), y, SI
+        return d2
 
     def _inject(self, x: tuple) -> tuple[tuple, np.ndarray]:
         """Fold the update's posterior dx into the nominal state and reset the error (Sola sec. 6.2-6.3)."""
-        dx_column, P_post = self._posterior
-        dx = dx_column[:, 0].tolist()
+        dx_array, P_post = self._posterior
+        dx = dx_array.tolist()
         q = quat_normalize_positive_w(quat_multiply(x[6:10], quat_exp(dx[6], dx[7], dx[8])))
         x_new = (x[0] + dx[0], x[1] + dx[1], x[2] + dx[2], x[3] + dx[3], x[4] + dx[4], x[5] + dx[5], *q,
                  x[10] + dx[9], x[11] + dx[10], x[12] + dx[11], x[13] + dx[12], x[14] + dx[13], x[15] + dx[14])
-        hx, hy, hz = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
-        G = _IDENTITY_ERROR.copy()
-        G.put(_G_INDEX, (1.0, hz, -hy, -hz, 1.0, hx, hy, -hx, 1.0))  # G_theta = I - [dtheta/2]x
-        P = G @ P_post @ G.T
-        return x_new, 0.5 * (P + P.T)
+        P = np.empty((N_ERROR, N_ERROR))
+        reset_covariance(P_post, (dx[6], dx[7], dx[8]), P)  # G P G', G_theta = I - [dtheta/2]x
+        return x_new, P
 
     def _reinitialised(self, x: tuple, P: np.ndarray, node: _Node) -> tuple[tuple, np.ndarray]:
         x_new = (*node.position, *x[3:6], *node.attitude, *x[10:16])
@@ -686,8 +677,8 @@ class ErrorStateKF:
                 if F_total is None:
                     F_total, Q_total = F, Q
                 else:
-                    F_total = F @ F_total
-                    Q_total = F @ Q_total @ F.T + Q
+                    Q_total = self._predict(Q_total, (F, Q))  # F Q_total F' + Q
+                    multiply(F, F_total, F_total)  # F_total = F F_total, in place: it is this call's own
             fa, wa = fb, wb
         return x, transition if transition is not None else (F_total, Q_total)
 
@@ -763,15 +754,6 @@ def chi2_quantile(probability: float, dof: int) -> float:
     gamma function (scipy.stats.chi2.ppf computes this same expression; tests/estimator checks the bits).
     From scipy.special: importing scipy.stats costs ~0.4 s per process, in every ground station's start-up."""
     return float(2 * gammaincinv(dof / 2, probability))
-
-
-def _inverse(s: np.ndarray) -> np.ndarray:
-    """S^-1 for the update by LAPACK gesv (S X = I), the routine numpy.linalg.inv runs too: on the
-    6x6 innovation covariance numpy's argument checks cost ~7 of its ~8 us."""
-    _, _, inverse, info = lapack_gesv(s, _IDENTITY_MOCAP)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"innovation covariance singular or invalid (LAPACK gesv info {info})")
-    return inverse
 
 
 def _lerp(a: tuple, b: tuple, s: float) -> tuple:

@@ -1,25 +1,35 @@
-"""The ESKF's per-sample propagation (estimator.eskf's module docstring has the equations), in Python and
-compiled.
+"""The ESKF's per-sample propagation and its covariance algebra (estimator.eskf's module docstring has the
+equations), in Python and compiled.
 
-Takes in: the nominal state x (16 floats: p ENU m, v ENU m/s, q wxyz body FLU -> world ENU, b_a FLU m/s^2,
-b_g FLU rad/s), the IMU signal at both ends of an interval (f0, w0, f1, w1: specific force FLU m/s^2 and
-rate FLU rad/s, 3 floats each), its length dt (s), gravity g (m/s^2), and optionally F - a writable
-C-contiguous (15, 15) float64 array holding the identity - with the flat indices (int64,
-TRANSITION_ENTRIES of them) its other entries go to.
+Takes in: for propagate, the nominal state x (16 floats: p ENU m, v ENU m/s, q wxyz body FLU -> world ENU,
+b_a FLU m/s^2, b_g FLU rad/s), the IMU signal at both ends of an interval (f0, w0, f1, w1: specific force
+FLU m/s^2 and rate FLU rad/s, 3 floats each), its length dt (s), gravity g (m/s^2), and optionally F - a
+writable C-contiguous (15, 15) float64 array holding the identity - with the flat indices (int64,
+TRANSITION_ENTRIES of them) its other entries go to. For the covariance kernels, C-contiguous float64
+arrays: the 15x15 error covariance P (error state order of estimator.eskf.ERROR_STATE_LABELS), the
+transition F and process noise Q; the mocap residual z (6: position ENU m, attitude error rad), R's
+diagonal r (m^2, rad^2) and the 6 states the frame measures; an attitude correction dtheta (rad).
 Gives out: propagate -> the nominal state after dt (16 floats), and the first-order error transition over
-dt written into F.
+dt written into F; predict_covariance -> F P F' + Q; update_covariance -> the Joseph-form posterior P,
+the posterior error state dx and the gate's d^2 (NaN when S is not positive definite);
+reset_covariance -> G P G'; multiply -> A B. Each writes into the `out` arrays it is given.
 
-`propagate` is the compiled twin (estimator/_eskf_kernels.c, built by `pip install`) when it was built, else
-`propagate_python` below. They give the same bits (tests/estimator/test_eskf_kernels.py): the C file repeats
-each expression in the same order, one IEEE operation at a time. Why compiled: this is the estimator's
-hot path, once per IMU sample and again for every sample a late mocap frame replays (issue 19); the
-Python twin costs 6.5 us per sample with F, the compiled one 1.0 us, the identity's copy included (medians
-of 5 x 20000 calls, one throwaway timing). Why C and not numba: importing numba took 0.22-0.33 s and
-loading one tiny cached function 0.30-0.64 s per process here (README: Lockstep speed), more than a flight's
-propagation costs in all; this module loads in 0.2 ms.
+Each function is the compiled twin (estimator/_eskf_kernels.c, built by `pip install`) when it was built,
+else its `*_python` twin below. They give the same bits (tests/estimator/test_eskf_kernels.py): the C file
+repeats each expression in the same order, one IEEE operation at a time. The covariance kernels sum in
+index order and use no BLAS, so their bits are the same on every CPU (see the section below). Why
+compiled: this is the estimator's hot path, once per IMU sample and again for every sample a late mocap
+frame replays (issue 19). The Python twin of propagate costs 6.5 us per sample with F, the compiled one
+1.0 us, the identity's copy included (medians of 5 x 20000 calls, one throwaway timing). The covariance
+twins cost 42 (predict), 103 (update) and 21 us (reset) per call, the compiled ones 1.4, 1.8 and 0.3 us
+(one throwaway timing, 20000 calls each), where numpy's BLAS predict took 2.4 us. Why C and not numba:
+importing numba took 0.22-0.33 s and loading one tiny cached function 0.30-0.64 s per process here
+(README: Lockstep speed), more than a flight's propagation costs in all; this module loads in 0.2 ms.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -78,10 +88,128 @@ def transition_values(r: tuple, f: tuple, w: tuple, dt: float) -> tuple:
     )
 
 
-try:
-    from estimator._eskf_kernels import propagate as propagate_compiled
-except ImportError:  # not built (no C compiler at install): the Python twin, same results, slower
-    propagate_compiled = None
+# ------------------------------------------------------------------ covariance algebra
+# The Kalman steps on the 15x15 error covariance, written as fixed-order sums so that they give the same bits
+# on every machine: numpy's matrix products go to BLAS, whose kernel (chosen per CPU at run time) sets the
+# order of each sum and whether it fuses multiply-adds, and with it the last bits of every estimate. Each
+# sum below runs in index order from its first term; each symmetric result is computed on and above the
+# diagonal and copied below it (exactly symmetric). The twins use elementwise numpy operations only
+# (one IEEE rounding per element, the same on every CPU) and np.add.accumulate, which adds in order.
 
-propagate = propagate_compiled if propagate_compiled is not None else propagate_python
-COMPILED = propagate_compiled is not None
+_UPPER = np.triu(np.ones((15, 15), dtype=bool))
+
+
+def _ordered_product(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A B with each entry summed over k = 0, 1, ... in order: A[i,0] B[0,j] + A[i,1] B[1,j] + ..."""
+    return np.add.accumulate(A[:, :, None] * B[None, :, :], axis=1)[:, -1, :]
+
+
+def _mirror_upper(M: np.ndarray) -> np.ndarray:
+    return np.where(_UPPER, M, M.T)
+
+
+def predict_covariance_python(P: np.ndarray, F: np.ndarray, Q: np.ndarray, out: np.ndarray) -> None:
+    """out = F P F' + Q (the predict): M = F P, then (M F')[i, j] + Q[i, j] for j >= i, mirrored."""
+    M = _ordered_product(F, P)
+    out[...] = _mirror_upper(_ordered_product(M, F.T) + Q)
+
+
+def cholesky_python(S: list) -> list | None:
+    """Lower Cholesky factor of a symmetric n x n S (lists of rows); None if S is not positive definite."""
+    n = len(S)
+    L = [[0.0] * n for _ in range(n)]
+    for j in range(n):
+        d = S[j][j]
+        for k in range(j):
+            d = d - L[j][k] * L[j][k]
+        if not d > 0.0:
+            return None
+        ljj = math.sqrt(d)
+        L[j][j] = ljj
+        for i in range(j + 1, n):
+            acc = S[i][j]
+            for k in range(j):
+                acc = acc - L[i][k] * L[j][k]
+            L[i][j] = acc / ljj
+    return L
+
+
+def update_covariance_python(P: np.ndarray, z, r, index, P_out: np.ndarray, dx_out: np.ndarray) -> float:
+    """The Kalman update with H selecting the states `index` (6 of the 15) and R = diag(r).
+
+    S = H P H' + R by its Cholesky factor L; K = P H' S^-1 as the solution X = K' of S X = H P' (forward with
+    L, back with L'); d^2 = y' S^-1 y as |L^-1 z|^2 (never negative); dx = K z (the prior error state is 0,
+    so y = z); Joseph form P_out = (I - K H) P (I - K H)' + K R K'. Returns d^2, or NaN with the outputs
+    untouched when S is not positive definite.
+    """
+    sel = [int(i) for i in index]
+    z = [float(v) for v in z]
+    r = [float(v) for v in r]
+    S = [[float(P[a, b]) + (r[m] if m == n else 0.0) for n, b in enumerate(sel)] for m, a in enumerate(sel)]
+    L = cholesky_python(S)
+    if L is None:
+        return math.nan
+    B = np.concatenate((P[:, sel].T, np.array(z)[:, None]), axis=1)  # 6 x 16
+    W = [None] * 6
+    for m in range(6):
+        acc = B[m]
+        for k in range(m):
+            acc = acc - L[m][k] * W[k]
+        W[m] = acc / L[m][m]
+    X = [None] * 6
+    for m in range(5, -1, -1):
+        acc = W[m]
+        for k in range(m + 1, 6):
+            acc = acc - L[k][m] * X[k]
+        X[m] = acc / L[m][m]
+    d2 = W[0][15] * W[0][15]
+    for m in range(1, 6):
+        d2 = d2 + W[m][15] * W[m][15]
+    K = [X[m][:15] for m in range(6)]  # K's columns
+    dx = K[0] * z[0]
+    for m in range(1, 6):
+        dx = dx + K[m] * z[m]
+    A = P
+    for m in range(6):
+        A = A - K[m][:, None] * P[sel[m]][None, :]
+    joseph = A
+    for m in range(6):
+        joseph = joseph - A[:, sel[m]][:, None] * K[m][None, :]
+    krk = (K[0] * r[0])[:, None] * K[0][None, :]
+    for m in range(1, 6):
+        krk = krk + (K[m] * r[m])[:, None] * K[m][None, :]
+    P_out[...] = _mirror_upper(joseph + krk)
+    dx_out[...] = dx
+    return float(d2)
+
+
+def reset_covariance_python(P: np.ndarray, dtheta, out: np.ndarray) -> None:
+    """out = G P G' with G the identity but G_theta = I - [dtheta/2]x on the attitude rows and columns 6..8
+    (the ESKF reset, Sola 2017 eq. 287): only those rows and columns mix, each over its three terms."""
+    hx, hy, hz = 0.5 * float(dtheta[0]), 0.5 * float(dtheta[1]), 0.5 * float(dtheta[2])
+    G = ((1.0, hz, -hy), (-hz, 1.0, hx), (hy, -hx, 1.0))
+    C = P.copy()
+    for a in range(3):
+        C[6 + a] = G[a][0] * P[6] + G[a][1] * P[7] + G[a][2] * P[8]
+    result = C.copy()
+    for a in range(3):
+        result[:, 6 + a] = C[:, 6] * G[a][0] + C[:, 7] * G[a][1] + C[:, 8] * G[a][2]
+    out[...] = _mirror_upper(result)
+
+
+def multiply_python(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """out = A B, each entry summed in order (chains the sub-steps' transitions)."""
+    out[...] = _ordered_product(A, B)
+
+
+try:
+    from estimator import _eskf_kernels as _compiled
+except ImportError:  # not built (no C compiler at install): the Python twins, same results, slower
+    _compiled = None
+
+COMPILED = _compiled is not None
+propagate = _compiled.propagate if COMPILED else propagate_python
+predict_covariance = _compiled.predict_covariance if COMPILED else predict_covariance_python
+update_covariance = _compiled.update_covariance if COMPILED else update_covariance_python
+reset_covariance = _compiled.reset_covariance if COMPILED else reset_covariance_python
+multiply = _compiled.multiply if COMPILED else multiply_python
