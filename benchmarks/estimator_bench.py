@@ -4,13 +4,13 @@ Takes in: nothing (seeded synthetic 1 m/s circles from tests/estimator/synthetic
 Gives out: a table on stdout: median over interleaved repeats of the mean thread CPU microseconds per add_imu,
 per add_mocap, per estimate() and per flight-loop tick, for the baseline, the candidate's Python twin and
 the candidate, their ratios, how far the baseline's final estimates differ from the candidate's (in units of
-the candidate's own sigma), and whether the two propagations' final estimates have the same bits.
+the candidate's own sigma), and whether the twins' and the compiled kernels' final estimates have the same bits.
 
 Baseline: estimator/eskf.py (and those of BASELINE_MODULES the commit has) as of commit BASELINE_COMMIT
 (before the per-sample speed work; --baseline-commit), read with `git show` and loaded as package
 `bench_baseline`; candidate: the working tree's estimator.eskf with its propagation as the ground station
-runs it (compiled when estimator/_eskf_kernels.c was built); py twin: the same filter on the Python twin of
-that propagation (estimator/eskf_kernels.py), i.e. what the compiled kernel saves. All
+runs it (compiled kernels when estimator/_eskf_kernels.c was built); py twin: the same filter on the Python
+twins of its kernels (estimator/eskf_kernels.py), i.e. what the compiled kernels save. All
 get the same messages in the same order, fed as the ground station's lockstep loop does:
   moments  - 2 ms ticks: the tick's messages, then one estimate() (one IMU sample per tick);
   attitude - 10 ms ticks: the tick's messages (5 IMU samples, 1 mocap frame), then one estimate().
@@ -137,15 +137,21 @@ def fly_ticks(kf, events: list, tick_s: float, overhead_ns: float) -> tuple[dict
     return per_call, kf.estimate()
 
 
+KERNELS = ("propagate", "predict_covariance", "update_covariance", "reset_covariance", "multiply")
+
+
 @contextlib.contextmanager
-def propagation(kernel):
-    """The working tree's filter with `kernel` as its per-sample propagation (eskf_kernels: compiled or
-    Python twin), for the calls inside the block."""
-    saved, eskf.propagate = eskf.propagate, kernel
+def python_twins():
+    """The working tree's filter on the Python twins of all its kernels (estimator/eskf_kernels.py), for the
+    calls inside the block."""
+    saved = {name: getattr(eskf, name) for name in KERNELS}
+    for name in KERNELS:
+        setattr(eskf, name, getattr(eskf_kernels, f"{name}_python"))
     try:
         yield
     finally:
-        eskf.propagate = saved
+        for name, kernel in saved.items():
+            setattr(eskf, name, kernel)
 
 
 def difference_in_sigma(a, b) -> float:
@@ -176,17 +182,16 @@ def main(argv: list[str] | None = None) -> None:
     vehicle, room = load_vehicle("crazyflie"), load_mocap_room("vicon")
     scratch = tempfile.TemporaryDirectory()  # the baseline's sources, for as long as the run lasts
     baseline = load_baseline(args.baseline_commit, Path(scratch.name))
-    # candidate: as the ground station runs it (the compiled propagation when it was built); py twin: the
-    # same filter on estimator/eskf_kernels.py's Python propagation, i.e. what the compiled kernel saves
-    filters = {"candidate": (ErrorStateKF, eskf_kernels.propagate),
-               "py twin": (ErrorStateKF, eskf_kernels.propagate_python)}
+    # candidate: as the ground station runs it (the compiled kernels when they were built); py twin: the
+    # same filter on estimator/eskf_kernels.py's Python twins, i.e. what the compiled kernels save
+    filters = {"candidate": (ErrorStateKF, False), "py twin": (ErrorStateKF, True)}
     if baseline:
-        filters["baseline"] = (baseline, None)
+        filters["baseline"] = (baseline, False)
     overhead_ns = clock_overhead_ns()
     print(f"estimator bench: {args.seconds:.0f} s synthetic 1 m/s circle per case, IMU {vehicle.imu.rate_hz:.0f} Hz, "
           f"mocap {room.rate_hz:.0f} Hz; median of {args.repeats} interleaved runs, thread CPU us per call "
           f"(clock overhead {1e-3 * overhead_ns:.2f} us subtracted; baseline = {args.baseline_commit[:9]}; "
-          f"candidate propagation: {'compiled' if eskf_kernels.COMPILED else 'Python twin (not built)'})")
+          f"candidate kernels: {'compiled' if eskf_kernels.COMPILED else 'Python twins (not built)'})")
     header = f"{'mode / case':40s} {'filter':10s}" + "".join(f"{k:>11s}" for k in COLUMNS)
     print(header)
     flights = {label: simulate(Flight(duration_s=args.seconds), vehicle.imu, room, np.random.default_rng(7), faults)
@@ -197,9 +202,9 @@ def main(argv: list[str] | None = None) -> None:
             results: dict[str, list[dict[str, float]]] = {name: [] for name in filters}
             finals = {}
             for _ in range(args.repeats):
-                for name, (cls, kernel) in filters.items():
+                for name, (cls, twins) in filters.items():
                     gc.collect()
-                    with propagation(kernel) if kernel is not None else contextlib.nullcontext():
+                    with python_twins() if twins else contextlib.nullcontext():
                         per_call, finals[name] = fly_ticks(build_filter(cls, vehicle, room), run.events, tick_s,
                                                            overhead_ns)
                     results[name].append(per_call)
@@ -219,7 +224,7 @@ def main(argv: list[str] | None = None) -> None:
             twin = "".join(f"{medians['py twin'][k] / medians['candidate'][k]:10.2f}x" for k in COLUMNS)
             same = "the same bits" if _estimate_bytes(finals["py twin"]) == _estimate_bytes(finals["candidate"]) \
                 else "DIFFERENT bits"
-            print(f"{'':40s} {'py/cand':10s}{twin}   final estimates of the two propagations: {same}")
+            print(f"{'':40s} {'py/cand':10s}{twin}   final estimates of the twins and the compiled: {same}")
 
 
 if __name__ == "__main__":
