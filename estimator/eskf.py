@@ -114,7 +114,7 @@ POSITION, VELOCITY, ATTITUDE, ACCEL_BIAS, GYRO_BIAS = (slice(i, i + 3) for i in 
 N_ERROR = 15
 N_MOCAP = 6
 _IDENTITY_ERROR = np.eye(N_ERROR)
-MOCAP_STATES = (0, 1, 2, 6, 7, 8)  # the error states a mocap frame measures (H's columns): dp, dtheta
+MOCAP_STATES = (*range(N_ERROR)[POSITION], *range(N_ERROR)[ATTITUDE])  # the states a mocap frame measures: H
 
 
 def _flat(cells) -> np.ndarray:
