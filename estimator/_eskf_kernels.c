@@ -1,10 +1,15 @@
-/* Compiled twin of estimator/eskf_kernels.py: the ESKF's per-sample propagation (issue 19).
+/* Compiled twin of estimator/eskf_kernels.py: the ESKF's per-sample propagation and its covariance algebra
+(issue 19).
 
-Takes in: the nominal state x (16 floats: p, v, q wxyz, b_a, b_g), the IMU signal at both ends of an
-interval (f0, w0, f1, w1: specific force FLU m/s^2, rate FLU rad/s, 3 floats each), its length dt (s), g
-(m/s^2), and optionally F - a writable C-contiguous float64 array
-holding the identity - with the flat indices (int64) its 48 other entries go to.
-Gives out: the nominal state after dt (a tuple of 16 floats), and F's entries written in place.
+Takes in: for propagate, the nominal state x (16 floats: p, v, q wxyz, b_a, b_g), the IMU signal at both
+ends of an interval (f0, w0, f1, w1: specific force FLU m/s^2, rate FLU rad/s, 3 floats each), its length
+dt (s), g (m/s^2), and optionally F - a writable C-contiguous float64 array holding the identity - with the
+flat indices (int64) its 48 other entries go to. For predict_covariance, update_covariance,
+reset_covariance and multiply: C-contiguous float64 15x15 matrices (P, F, Q), the mocap residual z, R's
+diagonal r and the six measured state indices, an attitude correction dtheta (rad), and writable outputs.
+Gives out: propagate -> the nominal state after dt (a tuple of 16 floats), and F's entries written in
+place; the covariance kernels write F P F' + Q, the Joseph-form posterior with dx (returning d^2, NaN if
+S is not positive definite), G P G', and A B into their outputs.
 quat_exp's small-angle threshold is model.frames.SMALL_ANGLE_RAD, read once when the module loads.
 
 Same result as the Python twin, bit for bit: every expression below is the Python one in the same order,
