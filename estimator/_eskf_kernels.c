@@ -17,7 +17,7 @@ one IEEE double operation at a time (setup.py builds this file with -ffp-contrac
 is fused), and sqrt, sin and cos are the C library's, which CPython's math module calls too.
 tests/estimator/test_eskf_kernels.py checks the bits against the twin. */
 
-#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float */
+#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float, check_nargs */
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -153,10 +153,7 @@ static PyObject *float_tuple(const double *v, Py_ssize_t n) {
 /* propagate(x, f0, w0, f1, w1, dt, g, F, index) -> x1: eskf_kernels.propagate */
 static PyObject *propagate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 9) {
-        PyErr_Format(PyExc_TypeError, "propagate takes 9 arguments (%zd given)", nargs);
-        return NULL;
-    }
+    if (check_nargs("propagate", nargs, 9) < 0) return NULL;
     double x[N_STATE], f0[3], w0[3], f1[3], w1[3];
     if (read_floats(args[0], x, N_STATE, "x") < 0 || read_floats(args[1], f0, 3, "f0") < 0
         || read_floats(args[2], w0, 3, "w0") < 0 || read_floats(args[3], f1, 3, "f1") < 0
@@ -219,6 +216,26 @@ static void release_all(Py_buffer *views, int n) {
     for (int i = 0; i < n; i++) PyBuffer_Release(&views[i]);
 }
 
+/* A kernel's array argument: its position, size in doubles, whether it is written, its name in errors */
+typedef struct {
+    int arg;
+    Py_ssize_t n;
+    int writable;
+    const char *name;
+} MatrixArg;
+
+#define SQUARE (N_ERR * N_ERR)
+
+/* views[i] = get_matrix of args[spec[i].arg] for i < count; -1 (error set, none held) if one fails */
+static int get_matrices(PyObject *const *args, const MatrixArg *spec, int count, Py_buffer *views) {
+    for (int i = 0; i < count; i++)
+        if (get_matrix(args[spec[i].arg], &views[i], spec[i].n, spec[i].writable, spec[i].name) < 0) {
+            release_all(views, i);
+            return -1;
+        }
+    return 0;
+}
+
 /* Copy the upper triangle of a 15x15 matrix onto its lower one */
 static void mirror_upper(double *m) {
     for (int i = 0; i < N_ERR; i++)
@@ -246,17 +263,10 @@ static void predict_kernel(const double *P, const double *F, const double *Q, do
 /* predict_covariance(P, F, Q, out) -> None */
 static PyObject *predict_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 4) {
-        PyErr_Format(PyExc_TypeError, "predict_covariance takes 4 arguments (%zd given)", nargs);
-        return NULL;
-    }
+    if (check_nargs("predict_covariance", nargs, 4) < 0) return NULL;
+    static const MatrixArg spec[4] = {{0, SQUARE, 0, "P"}, {1, SQUARE, 0, "F"}, {2, SQUARE, 0, "Q"}, {3, SQUARE, 1, "out"}};
     Py_buffer v[4];
-    const char *names[4] = {"P", "F", "Q", "out"};
-    for (int a = 0; a < 4; a++)
-        if (get_matrix(args[a], &v[a], N_ERR * N_ERR, a == 3, names[a]) < 0) {
-            release_all(v, a);
-            return NULL;
-        }
+    if (get_matrices(args, spec, 4, v) < 0) return NULL;
     predict_kernel(v[0].buf, v[1].buf, v[2].buf, v[3].buf);
     release_all(v, 4);
     Py_RETURN_NONE;
@@ -283,10 +293,7 @@ static int cholesky(const double *S, double *L) {
 /* update_covariance(P, z, r, index, P_out, dx_out) -> d2 (NaN: S not positive definite, outputs untouched) */
 static PyObject *update_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 6) {
-        PyErr_Format(PyExc_TypeError, "update_covariance takes 6 arguments (%zd given)", nargs);
-        return NULL;
-    }
+    if (check_nargs("update_covariance", nargs, 6) < 0) return NULL;
     double z[N_MEAS], r[N_MEAS], index_values[N_MEAS];
     int sel[N_MEAS];
     if (read_floats(args[1], z, N_MEAS, "z") < 0 || read_floats(args[2], r, N_MEAS, "r") < 0
@@ -299,16 +306,9 @@ static PyObject *update_covariance(PyObject *self, PyObject *const *args, Py_ssi
             return NULL;
         }
     }
+    static const MatrixArg spec[3] = {{0, SQUARE, 0, "P"}, {4, SQUARE, 1, "P_out"}, {5, N_ERR, 1, "dx_out"}};
     Py_buffer v[3];
-    if (get_matrix(args[0], &v[0], N_ERR * N_ERR, 0, "P") < 0) return NULL;
-    if (get_matrix(args[4], &v[1], N_ERR * N_ERR, 1, "P_out") < 0) {
-        release_all(v, 1);
-        return NULL;
-    }
-    if (get_matrix(args[5], &v[2], N_ERR, 1, "dx_out") < 0) {
-        release_all(v, 2);
-        return NULL;
-    }
+    if (get_matrices(args, spec, 3, v) < 0) return NULL;
     const double *P = v[0].buf;
     double *P_out = v[1].buf, *dx = v[2].buf;
     double S[N_MEAS * N_MEAS], L[N_MEAS * N_MEAS];
@@ -370,18 +370,12 @@ static PyObject *update_covariance(PyObject *self, PyObject *const *args, Py_ssi
    columns 6..8) */
 static PyObject *reset_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 3) {
-        PyErr_Format(PyExc_TypeError, "reset_covariance takes 3 arguments (%zd given)", nargs);
-        return NULL;
-    }
+    if (check_nargs("reset_covariance", nargs, 3) < 0) return NULL;
     double dtheta[3];
     if (read_floats(args[1], dtheta, 3, "dtheta") < 0) return NULL;
+    static const MatrixArg spec[2] = {{0, SQUARE, 0, "P"}, {2, SQUARE, 1, "out"}};
     Py_buffer v[2];
-    if (get_matrix(args[0], &v[0], N_ERR * N_ERR, 0, "P") < 0) return NULL;
-    if (get_matrix(args[2], &v[1], N_ERR * N_ERR, 1, "out") < 0) {
-        release_all(v, 1);
-        return NULL;
-    }
+    if (get_matrices(args, spec, 2, v) < 0) return NULL;
     const double *P = v[0].buf;
     double *out = v[1].buf;
     double hx = 0.5 * dtheta[0], hy = 0.5 * dtheta[1], hz = 0.5 * dtheta[2];
@@ -413,17 +407,10 @@ static PyObject *reset_covariance(PyObject *self, PyObject *const *args, Py_ssiz
 /* multiply(A, B, out) -> None: out = A B (15x15) */
 static PyObject *multiply(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 3) {
-        PyErr_Format(PyExc_TypeError, "multiply takes 3 arguments (%zd given)", nargs);
-        return NULL;
-    }
+    if (check_nargs("multiply", nargs, 3) < 0) return NULL;
+    static const MatrixArg spec[3] = {{0, SQUARE, 0, "A"}, {1, SQUARE, 0, "B"}, {2, SQUARE, 1, "out"}};
     Py_buffer v[3];
-    const char *names[3] = {"A", "B", "out"};
-    for (int a = 0; a < 3; a++)
-        if (get_matrix(args[a], &v[a], N_ERR * N_ERR, a == 2, names[a]) < 0) {
-            release_all(v, a);
-            return NULL;
-        }
+    if (get_matrices(args, spec, 3, v) < 0) return NULL;
     const double *A = v[0].buf, *B = v[1].buf;
     double product[N_ERR * N_ERR]; /* out may be A or B */
     for (int i = 0; i < N_ERR; i++)

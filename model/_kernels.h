@@ -1,5 +1,6 @@
 /* What the compiled kernels (estimator/_eskf_kernels.c, simulator/_dynamics_kernels.c) share: reading
-   Python numbers into C doubles. Included by both; setup.py lists it in each extension's depends. */
+   Python numbers into C doubles, checking a call's argument count. Included by both; setup.py lists it in
+   each extension's depends. */
 
 #ifndef CFSTACK_KERNELS_H
 #define CFSTACK_KERNELS_H
@@ -40,6 +41,13 @@ static int read_module_float(const char *module, const char *name, double *out) 
     *out = PyFloat_AsDouble(value);
     Py_DECREF(value);
     return PyErr_Occurred() ? -1 : 0;
+}
+
+/* -1 with TypeError unless a kernel got its `expected` number of arguments */
+static int check_nargs(const char *kernel, Py_ssize_t nargs, Py_ssize_t expected) {
+    if (nargs == expected) return 0;
+    PyErr_Format(PyExc_TypeError, "%s takes %zd arguments (%zd given)", kernel, expected, nargs);
+    return -1;
 }
 
 #endif

@@ -13,7 +13,7 @@ The twin reads a middle or end wrench only when it is another object than the on
 the same either way, so this file always reads them. tests/simulator/test_dynamics_kernels.py checks the
 bits against the twin. */
 
-#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float */
+#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float, check_nargs */
 #include <math.h>
 
 #define N_STATE 13
@@ -37,10 +37,7 @@ static void drag_world(double qw, double qx, double qy, double qz, double vx, do
 /* rk4(x, u0, um, u1, steps, gyro) -> list: dynamics_kernels.rk4 */
 static PyObject *rk4(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 6) {
-        PyErr_Format(PyExc_TypeError, "rk4 takes 6 arguments (%zd given)", nargs);
-        return NULL;
-    }
+    if (check_nargs("rk4", nargs, 6) < 0) return NULL;
     double x[N_STATE], u0[N_WRENCH], um[N_WRENCH], u1[N_WRENCH], steps[6], gyro[3];
     if (read_floats(args[0], x, N_STATE, "x") < 0 || read_floats(args[1], u0, N_WRENCH, "u0") < 0
         || read_floats(args[2], um, N_WRENCH, "um") < 0 || read_floats(args[3], u1, N_WRENCH, "u1") < 0
