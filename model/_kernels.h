@@ -9,7 +9,7 @@
 #include <Python.h>
 
 /* n numbers of a sequence into out; -1 with ValueError (wrong length) or TypeError (not a number) set */
-static int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *name) {
+static inline int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *name) {
     PyObject *fast = PySequence_Fast(seq, name);
     if (fast == NULL) return -1;
     if (PySequence_Fast_GET_SIZE(fast) != n) {
@@ -32,7 +32,7 @@ static int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *nam
 
 /* module.name as a double, read once when a kernel module loads (a constant it shares with its twin);
    -1 with the import or attribute error set */
-static int read_module_float(const char *module, const char *name, double *out) {
+static inline int read_module_float(const char *module, const char *name, double *out) {
     PyObject *mod = PyImport_ImportModule(module);
     if (mod == NULL) return -1;
     PyObject *value = PyObject_GetAttrString(mod, name);
@@ -44,7 +44,7 @@ static int read_module_float(const char *module, const char *name, double *out) 
 }
 
 /* -1 with TypeError unless a kernel got its `expected` number of arguments */
-static int check_nargs(const char *kernel, Py_ssize_t nargs, Py_ssize_t expected) {
+static inline int check_nargs(const char *kernel, Py_ssize_t nargs, Py_ssize_t expected) {
     if (nargs == expected) return 0;
     PyErr_Format(PyExc_TypeError, "%s takes %zd arguments (%zd given)", kernel, expected, nargs);
     return -1;

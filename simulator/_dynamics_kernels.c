@@ -1,9 +1,15 @@
-/* Compiled twin of simulator/dynamics_kernels.py: the rigid body's RK4 step (issue 19).
+/* Compiled twin of simulator/dynamics_kernels.py: the rigid body's RK4 step and the rotors' lag (issue 19).
 
-Takes in: the state x (13 floats: position ENU m, velocity ENU m/s, attitude wxyz, body rates FLU rad/s), the
+rk4 takes in: the state x (13 floats: position ENU m, velocity ENU m/s, attitude wxyz, body rates FLU rad/s), the
 wrench terms u = (T/m, Mx/Ixx, My/Iyy, Mz/Izz, drag/m) at the step's start, middle and end (u0, um, u1: 5
 floats each), the step's constants (h, h/2, h/4, h/6, h/12, h^2/6) and the gyroscopic coefficients (3 floats).
 Gives out: the state after the step, a new list of 13 floats.
+rotor_inputs takes in: rotor speeds w (4 floats, rad/s) and the body's coefficients (ROTOR_COEFFS floats:
+the allocation matrix row by row, mass kg, Ixx, Iyy, Izz kg m^2, drag per rad/s); gives out (T N, (T/m,
+Mx/Ixx, My/Iyy, Mz/Izz, drag/m)). rotor_lag takes in: the rotor speeds w and commanded speeds (4 floats each,
+rad/s), the decays over half a step and a whole one, the coefficients; gives out None when the step leaves
+the speeds as they are, else (the speeds at the step's end, a new list; T there; the wrench terms at the
+step's middle and end).
 Gravity is model.vehicle.GRAVITY_MPS2, read once when the module loads.
 
 Same result as the Python twin, bit for bit: every expression below is the Python one in the same order,
@@ -18,6 +24,8 @@ bits against the twin. */
 
 #define N_STATE 13
 #define N_WRENCH 5
+#define N_ROTORS 4
+#define ROTOR_COEFFS 21 /* 16 allocation entries, mass, Ixx, Iyy, Izz, drag per rad/s */
 
 static double gravity_mps2; /* model.vehicle.GRAVITY_MPS2 */
 
@@ -32,6 +40,34 @@ static void drag_world(double qw, double qx, double qy, double qz, double vx, do
     out[0] = (1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy;
     out[1] = 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy;
     out[2] = 2.0 * (qx * qz - qw * qy) * fx + 2.0 * (qy * qz + qw * qx) * fy;
+}
+
+static PyObject *float_tuple(const double *values, Py_ssize_t n) {
+    PyObject *tuple = PyTuple_New(n);
+    if (tuple == NULL) return NULL;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *item = PyFloat_FromDouble(values[i]);
+        if (item == NULL) {
+            Py_DECREF(tuple);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(tuple, i, item);
+    }
+    return tuple;
+}
+
+static PyObject *float_list(const double *values, Py_ssize_t n) {
+    PyObject *list = PyList_New(n);
+    if (list == NULL) return NULL;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *item = PyFloat_FromDouble(values[i]);
+        if (item == NULL) {
+            Py_DECREF(list);
+            return NULL;
+        }
+        PyList_SET_ITEM(list, i, item);
+    }
+    return list;
 }
 
 /* rk4(x, u0, um, u1, steps, gyro) -> list: dynamics_kernels.rk4 */
@@ -144,28 +180,87 @@ static PyObject *rk4(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
         wy + h6 * (e1y + 2.0 * (e2y + e3y) + e4y),
         wz + h6 * (e1z + 2.0 * (e2z + e3z) + e4z),
     };
-    PyObject *list = PyList_New(N_STATE);
-    if (list == NULL) return NULL;
-    for (Py_ssize_t i = 0; i < N_STATE; i++) {
-        PyObject *item = PyFloat_FromDouble(out[i]);
-        if (item == NULL) {
-            Py_DECREF(list);
-            return NULL;
-        }
-        PyList_SET_ITEM(list, i, item);
+    return float_list(out, N_STATE);
+}
+
+/* dynamics_kernels.rotor_inputs_python on C doubles: T (returned) and the wrench terms u */
+static double inputs_for(const double w[N_ROTORS], const double c[ROTOR_COEFFS], double u[N_WRENCH]) {
+    double s0 = w[0] * w[0], s1 = w[1] * w[1], s2 = w[2] * w[2], s3 = w[3] * w[3];
+    double mass = c[16];
+    double thrust = c[0] * s0 + c[1] * s1 + c[2] * s2 + c[3] * s3;
+    u[0] = thrust / mass;
+    u[1] = (c[4] * s0 + c[5] * s1 + c[6] * s2 + c[7] * s3) / c[17];
+    u[2] = (c[8] * s0 + c[9] * s1 + c[10] * s2 + c[11] * s3) / c[18];
+    u[3] = (c[12] * s0 + c[13] * s1 + c[14] * s2 + c[15] * s3) / c[19];
+    u[4] = c[20] * (w[0] + w[1] + w[2] + w[3]) / mass;
+    return thrust;
+}
+
+/* rotor_inputs(w, coeffs) -> (T, u): dynamics_kernels.rotor_inputs */
+static PyObject *rotor_inputs(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (check_nargs("rotor_inputs", nargs, 2) < 0) return NULL;
+    double w[N_ROTORS], c[ROTOR_COEFFS], u[N_WRENCH];
+    if (read_floats(args[0], w, N_ROTORS, "w") < 0 || read_floats(args[1], c, ROTOR_COEFFS, "coeffs") < 0)
+        return NULL;
+    double thrust = inputs_for(w, c, u);
+    PyObject *wrench = float_tuple(u, N_WRENCH);
+    if (wrench == NULL) return NULL;
+    return Py_BuildValue("(dN)", thrust, wrench);
+}
+
+/* rotor_lag(w, cmd, decay_half, decay_full, coeffs) -> None | (w_end, T, um, u1): dynamics_kernels.rotor_lag */
+static PyObject *rotor_lag(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (check_nargs("rotor_lag", nargs, 5) < 0) return NULL;
+    double w[N_ROTORS], cmd[N_ROTORS], c[ROTOR_COEFFS];
+    if (read_floats(args[0], w, N_ROTORS, "w") < 0 || read_floats(args[1], cmd, N_ROTORS, "cmd") < 0
+        || read_floats(args[4], c, ROTOR_COEFFS, "coeffs") < 0)
+        return NULL;
+    double dh = PyFloat_AsDouble(args[2]);
+    if (dh == -1.0 && PyErr_Occurred()) return NULL;
+    double df = PyFloat_AsDouble(args[3]);
+    if (df == -1.0 && PyErr_Occurred()) return NULL;
+    double w_end[N_ROTORS], w_half[N_ROTORS], um[N_WRENCH], u1[N_WRENCH];
+    int changed = 0;
+    for (int i = 0; i < N_ROTORS; i++) {
+        w_end[i] = cmd[i] + (w[i] - cmd[i]) * df;
+        changed |= w_end[i] != w[i]; /* as the twin's list comparison: a NaN counts as a change */
     }
-    return list;
+    if (!changed) Py_RETURN_NONE;
+    for (int i = 0; i < N_ROTORS; i++) w_half[i] = cmd[i] + (w[i] - cmd[i]) * dh;
+    inputs_for(w_half, c, um);
+    double thrust = inputs_for(w_end, c, u1);
+    PyObject *speeds = float_list(w_end, N_ROTORS);
+    if (speeds == NULL) return NULL;
+    PyObject *middle = float_tuple(um, N_WRENCH);
+    if (middle == NULL) {
+        Py_DECREF(speeds);
+        return NULL;
+    }
+    PyObject *end = float_tuple(u1, N_WRENCH);
+    if (end == NULL) {
+        Py_DECREF(speeds);
+        Py_DECREF(middle);
+        return NULL;
+    }
+    return Py_BuildValue("(NdNN)", speeds, thrust, middle, end);
 }
 
 static PyMethodDef methods[] = {
     {"rk4", (PyCFunction)(void (*)(void))rk4, METH_FASTCALL,
      "rk4(x, u0, um, u1, steps, gyro) -> x1 (simulator.dynamics_kernels.rk4)"},
+    {"rotor_inputs", (PyCFunction)(void (*)(void))rotor_inputs, METH_FASTCALL,
+     "rotor_inputs(w, coeffs) -> (T, u) (simulator.dynamics_kernels.rotor_inputs)"},
+    {"rotor_lag", (PyCFunction)(void (*)(void))rotor_lag, METH_FASTCALL,
+     "rotor_lag(w, cmd, decay_half, decay_full, coeffs) -> None | (w_end, T, um, u1) "
+     "(simulator.dynamics_kernels.rotor_lag)"},
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_dynamics_kernels",
-    "Compiled twin of simulator.dynamics_kernels (the rigid body's RK4 step).", -1, methods,
+    "Compiled twin of simulator.dynamics_kernels (the rigid body's RK4 step, the rotors' lag).", -1, methods,
 };
 
 PyMODINIT_FUNC PyInit__dynamics_kernels(void) {

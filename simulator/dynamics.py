@@ -14,7 +14,8 @@ Physics (Mellinger & Kumar 2011 notation; body z = thrust axis):
     motor lag (tau > 0):  w_i' = (w_cmd_i - w_i) / tau  (solved exactly over the step)
     rotor drag (c > 0):   f_drag_xy = -c (sum_i w_i / w_hover) v_body_xy   (N; c per rotor at hover)
 Integrated by classical RK4 at a fixed step (tests check its fourth order against an independent
-solution): simulator.dynamics_kernels.rk4, compiled when it was built, else its Python twin (the same bits).
+solution): simulator.dynamics_kernels.rk4, compiled when it was built, else its Python twin (the same bits);
+the rotors' lag and the wrench terms they give likewise (dynamics_kernels.rotor_lag, rotor_inputs).
 The state lives in plain Python floats and the RK4 stages are written out: a numpy call on a 3-vector costs
 ~1 us, and a Python call per stage ~0.3 us, against a budget of a few us per step. The wrench terms (T/m,
 M/I, drag/m) are recomputed only when the rotor speeds change.
@@ -40,7 +41,7 @@ from link.messages import CrashReport, Touched, TruthState
 from model.frames import IDENTITY, Quat, Vec3, level_with_yaw, quat_normalize
 from model.vehicle import GRAVITY_MPS2, Vehicle
 from model.world import World
-from simulator.dynamics_kernels import rk4, world_to_body
+from simulator.dynamics_kernels import rk4, rotor_coeffs, rotor_inputs, rotor_lag, world_to_body
 
 _NO_DV: Vec3 = (0.0, 0.0, 0.0)  # no contact impulse since the last IMU sample (compared by identity)
 
@@ -73,16 +74,15 @@ class QuadrotorDynamics:
         self._mass = vehicle.mass_kg
         self._weight = vehicle.weight_n
         self._ixx, self._iyy, self._izz = (float(v) for v in np.diag(inertia))
-        a = vehicle.allocation
-        self._alloc = tuple(tuple(float(v) for v in row) for row in a)
         self._w_min = vehicle.rotor_speed_min_radps
         self._w_max = vehicle.rotor_speed_max_radps
         tau = vehicle.motor_time_constant_s
         self._lag = tau > 0.0
         self._decay_half = math.exp(-0.5 * self.dt_s / tau) if self._lag else 0.0
         self._decay_full = math.exp(-self.dt_s / tau) if self._lag else 0.0
-        self._drag_per_radps = (vehicle.rotor_drag_coefficient / vehicle.hover_rotor_speed_radps
-                                if vehicle.rotor_drag_coefficient > 0.0 else 0.0)
+        drag_per_radps = (vehicle.rotor_drag_coefficient / vehicle.hover_rotor_speed_radps
+                          if vehicle.rotor_drag_coefficient > 0.0 else 0.0)
+        self._coeffs = rotor_coeffs(vehicle.allocation, self._mass, (self._ixx, self._iyy, self._izz), drag_per_radps)
         self.landing_speed_max_mps = contact.landing_speed_max_mps
         self.collision_radius_m = vehicle.collision_radius_m
         self.floor_z_m = float(world.bounds[4]) if world is not None else 0.0
@@ -205,7 +205,7 @@ class QuadrotorDynamics:
     def _set_rotor_speeds(self, speeds: list[float]) -> None:
         """Rotor speeds now, and the wrench terms the integrator takes from them (cached until they change)."""
         self._w = speeds
-        self._thrust_n, self._u = self._inputs_for(speeds)
+        self._thrust_n, self._u = rotor_inputs(speeds, self._coeffs)
 
     # --- outputs ----------------------------------------------------------------------------------
     def specific_force_flu(self) -> Vec3:
@@ -236,12 +236,9 @@ class QuadrotorDynamics:
         thrust_start = self._thrust_n  # the floor test goes by the thrust at the step's start
         u0 = um = u1 = self._u
         if self._lag:
-            w0, cmd = self._w, self._w_cmd
-            dh, df = self._decay_half, self._decay_full
-            w_end = [c + (w - c) * df for w, c in zip(w0, cmd, strict=True)]
-            if w_end != w0:
-                um = self._inputs_for([c + (w - c) * dh for w, c in zip(w0, cmd, strict=True)])[1]
-                self._thrust_n, u1 = self._inputs_for(w_end)
+            lagged = rotor_lag(self._w, self._w_cmd, self._decay_half, self._decay_full, self._coeffs)
+            if lagged is not None:
+                w_end, self._thrust_n, um, u1 = lagged
                 self._w, self._u = w_end, u1  # the step's end state (rk4 takes u0, um, u1 as arguments)
         if self.on_ground:
             if thrust_start <= self._weight:  # the floor holds it: no sinking, no sliding, stays level
@@ -251,17 +248,6 @@ class QuadrotorDynamics:
         if self._open_space and x[2] >= self.floor_z_m:
             return None  # no world, above the floor: nothing to meet
         return self._check_world(self.t_s)
-
-    def _inputs_for(self, w) -> tuple[float, tuple[float, float, float, float, float]]:
-        """T (N), and (T/m, Mx/Ixx, My/Iyy, Mz/Izz, drag/m) for rotor speeds w: what the integrator takes."""
-        s0, s1, s2, s3 = w[0] * w[0], w[1] * w[1], w[2] * w[2], w[3] * w[3]
-        a0, a1, a2, a3 = self._alloc
-        thrust = a0[0] * s0 + a0[1] * s1 + a0[2] * s2 + a0[3] * s3
-        return thrust, (thrust / self._mass,
-                        (a1[0] * s0 + a1[1] * s1 + a1[2] * s2 + a1[3] * s3) / self._ixx,
-                        (a2[0] * s0 + a2[1] * s1 + a2[2] * s2 + a2[3] * s3) / self._iyy,
-                        (a3[0] * s0 + a3[1] * s1 + a3[2] * s2 + a3[3] * s3) / self._izz,
-                        self._drag_per_radps * (w[0] + w[1] + w[2] + w[3]) / self._mass)
 
     # --- contact ----------------------------------------------------------------------------------
     def _rest_on_floor(self) -> None:

@@ -1,16 +1,23 @@
-"""The rigid body's RK4 step (simulator.dynamics' module docstring has the equations), in Python and compiled.
+"""The rigid body's RK4 step (simulator.dynamics' module docstring has the equations) and the rotors' lag, in
+Python and compiled.
 
 Takes in: the state x (13 floats: position ENU m, velocity ENU m/s, attitude wxyz body FLU -> world ENU,
 body rates FLU rad/s), the wrench terms u = (T/m m/s^2, Mx/Ixx, My/Iyy, Mz/Izz rad/s^2, drag/m 1/s) at the
 step's start, middle and end (u0, um, u1), the step's constants steps = (h, h/2, h/4, h/6, h/12, h^2/6) (s, s^2)
 and gyro = ((Izz - Iyy)/Ixx, (Ixx - Izz)/Iyy, (Iyy - Ixx)/Izz); gravity is model.vehicle.GRAVITY_MPS2.
 Gives out: rk4 -> the state after the step, a new list of 13 floats (the quaternion renormalised).
+For the rotors: rotor speeds w (4 floats, rad/s), and the body's coefficients `coeffs` (ROTOR_COEFFS floats:
+the allocation matrix's 16 entries row by row (N and N m per (rad/s)^2), mass kg, Ixx, Iyy, Izz kg m^2, the
+rotor drag per rad/s of summed rotor speed, kg/s per rad/s). rotor_inputs -> (T N, the wrench terms u);
+rotor_lag -> None when a step of the first-order lag leaves w as it is, else (w at the step's end, a new
+list; T there; u at the step's middle and end).
 
-`rk4` is the compiled twin (simulator/_dynamics_kernels.c, built by `pip install`) when it was built, else
-`rk4_python` below. They give the same bits (tests/simulator/test_dynamics_kernels.py): the C file repeats
-each expression in the same order, one IEEE operation at a time. Why compiled: it runs once per physics
-step (1 kHz of simulated time, per vehicle), and the Python twin took 4.5 us per call (one throwaway timing,
-warm) of a faithful vehicle's 21-25 us step (README: Lockstep speed).
+`rk4`, `rotor_inputs` and `rotor_lag` are the compiled twins (simulator/_dynamics_kernels.c, built by `pip
+install`) when they were built, else the `*_python` functions below. They give the same bits
+(tests/simulator/test_dynamics_kernels.py): the C file repeats each expression in the same order, one IEEE
+operation at a time. Why compiled: they run once per physics step (1 kHz of simulated time, per vehicle).
+The RK4 twin took 4.5 us per call (one throwaway timing, warm) of a faithful vehicle's 21-25 us step, and
+the lag's Python took 3-4 us per step more than a vehicle without lag (README: Lockstep speed).
 """
 
 from __future__ import annotations
@@ -150,10 +157,49 @@ def world_to_body(qw: float, qx: float, qy: float, qz: float, vx: float, vy: flo
     )
 
 
+ROTOR_COEFFS = 21  # 16 allocation entries, mass, Ixx, Iyy, Izz, drag per rad/s
+
+
+def rotor_coeffs(allocation, mass_kg: float, inertia_diag_kgm2, drag_per_radps: float) -> tuple[float, ...]:
+    """The coefficients rotor_inputs and rotor_lag take, as floats in their order."""
+    return (*(float(v) for row in allocation for v in row), float(mass_kg),
+            *(float(v) for v in inertia_diag_kgm2), float(drag_per_radps))
+
+
+def rotor_inputs_python(w, coeffs: tuple) -> tuple[float, tuple[float, float, float, float, float]]:
+    """T (N), and (T/m, Mx/Ixx, My/Iyy, Mz/Izz, drag/m) for rotor speeds w: what the integrator takes.
+    Each force or moment is its allocation row times the squared speeds, summed in rotor order."""
+    s0, s1, s2, s3 = w[0] * w[0], w[1] * w[1], w[2] * w[2], w[3] * w[3]
+    (a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33,
+     mass, ixx, iyy, izz, drag) = coeffs
+    thrust = a00 * s0 + a01 * s1 + a02 * s2 + a03 * s3
+    return thrust, (thrust / mass,
+                    (a10 * s0 + a11 * s1 + a12 * s2 + a13 * s3) / ixx,
+                    (a20 * s0 + a21 * s1 + a22 * s2 + a23 * s3) / iyy,
+                    (a30 * s0 + a31 * s1 + a32 * s2 + a33 * s3) / izz,
+                    drag * (w[0] + w[1] + w[2] + w[3]) / mass)
+
+
+def rotor_lag_python(w: list, cmd: list, decay_half: float, decay_full: float, coeffs: tuple):
+    """One step of each rotor's first-order lag toward its command, w(t) = c + (w0 - c) exp(-t / tau) (the
+    decays exp(-h / 2 tau) and exp(-h / tau) are given): None if the step leaves every speed as it is (the
+    wrench is unchanged), else (w at the end, T there, u at the middle, u at the end)."""
+    w_end = [c + (s - c) * decay_full for s, c in zip(w, cmd, strict=True)]
+    if w_end == w:
+        return None
+    um = rotor_inputs_python([c + (s - c) * decay_half for s, c in zip(w, cmd, strict=True)], coeffs)[1]
+    thrust, u1 = rotor_inputs_python(w_end, coeffs)
+    return w_end, thrust, um, u1
+
+
 try:
     from simulator._dynamics_kernels import rk4 as rk4_compiled
-except ImportError:  # not built (no C compiler at install): the Python twin, same results, slower
-    rk4_compiled = None
+    from simulator._dynamics_kernels import rotor_inputs as rotor_inputs_compiled
+    from simulator._dynamics_kernels import rotor_lag as rotor_lag_compiled
+except ImportError:  # not built (no C compiler at install): the Python twins, same results, slower
+    rk4_compiled = rotor_inputs_compiled = rotor_lag_compiled = None
 
-rk4 = rk4_compiled if rk4_compiled is not None else rk4_python
 COMPILED = rk4_compiled is not None
+rk4 = rk4_compiled if COMPILED else rk4_python
+rotor_inputs = rotor_inputs_compiled if COMPILED else rotor_inputs_python
+rotor_lag = rotor_lag_compiled if COMPILED else rotor_lag_python

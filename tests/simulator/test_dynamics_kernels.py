@@ -1,5 +1,5 @@
-"""The compiled RK4 step (simulator/_dynamics_kernels.c) gives its Python twin's bits
-(simulator/dynamics_kernels.py), step by step on random states and over whole flights (issue 19: behaviour
+"""The compiled RK4 step and rotor lag (simulator/_dynamics_kernels.c) give their Python twins' bits
+(simulator/dynamics_kernels.py), call by call on random inputs and over whole flights (issue 19: behaviour
 unchanged). The twin's physics is tests/simulator/test_dynamics.py's (fourth order against an independent
 solution, with and without rotor drag)."""
 
@@ -76,6 +76,55 @@ def test_compiled_step_refuses_bad_arguments_with_one_error():
     assert rk4(x, u, u, u, steps, gyro) == dynamics_kernels.rk4_python(x, u, u, u, steps, gyro)
 
 
+def _random_rotors(rng: np.random.Generator):
+    """Rotor speeds, commands (sometimes reached: the lag then changes nothing) and coefficients, drawn wide."""
+    w = [float(v) for v in rng.uniform(0.0, 3000.0, 4)]
+    cmd = list(w) if rng.random() < 0.1 else [float(v) for v in rng.uniform(0.0, 3000.0, 4)]
+    decay_full = float(rng.uniform(0.5, 1.0))
+    decay_half = float(np.sqrt(decay_full))
+    alloc = rng.normal(scale=1e-8, size=(4, 4))
+    drag = float(rng.uniform(0.0, 1e-4)) if rng.random() < 0.5 else 0.0
+    coeffs = dynamics_kernels.rotor_coeffs(alloc, rng.uniform(0.02, 0.05), rng.uniform(1e-5, 3e-5, 3), drag)
+    return w, cmd, decay_half, decay_full, coeffs
+
+
+@needs_compiled
+def test_compiled_rotor_lag_and_inputs_are_the_python_twins_bit_for_bit():
+    rng = np.random.default_rng(12)
+    unchanged = 0
+    for _ in range(20000):
+        w, cmd, dh, df, coeffs = _random_rotors(rng)
+        thrust, u = dynamics_kernels.rotor_inputs_compiled(w, coeffs)
+        twin_thrust, twin_u = dynamics_kernels.rotor_inputs_python(w, coeffs)
+        assert type(u) is tuple and _bits([thrust, *u]) == _bits([twin_thrust, *twin_u])
+        compiled = dynamics_kernels.rotor_lag_compiled(w, cmd, dh, df, coeffs)
+        twin = dynamics_kernels.rotor_lag_python(w, cmd, dh, df, coeffs)
+        if twin is None:
+            assert compiled is None
+            unchanged += 1
+            continue
+        w_end, thrust, um, u1 = compiled
+        assert type(w_end) is list and type(um) is tuple and type(u1) is tuple
+        assert _bits([*w_end, thrust, *um, *u1]) == _bits([*twin[0], twin[1], *twin[2], *twin[3]])
+    assert 1000 < unchanged < 5000  # both branches ran
+
+
+@needs_compiled
+def test_compiled_rotor_kernels_refuse_bad_arguments_with_one_error():
+    w, coeffs = [1.0, 2.0, 3.0, 4.0], tuple(float(k + 1) for k in range(dynamics_kernels.ROTOR_COEFFS))
+    with pytest.raises(ValueError, match="w: expected 4"):
+        dynamics_kernels.rotor_inputs_compiled(w[:3], coeffs)
+    with pytest.raises(ValueError, match="coeffs: expected 21"):
+        dynamics_kernels.rotor_lag_compiled(w, w, 0.9, 0.8, coeffs[:20])
+    with pytest.raises(TypeError):
+        dynamics_kernels.rotor_lag_compiled(w, w, "0.9", 0.8, coeffs)
+    with pytest.raises(TypeError):
+        dynamics_kernels.rotor_lag_compiled(w, w, 0.9, 0.8)
+    nan = [float("nan")] * 4  # a NaN speed never equals itself: a change, as the twin's list comparison says
+    assert dynamics_kernels.rotor_lag_compiled(nan, nan, 0.9, 0.8, coeffs) is not None
+    assert dynamics_kernels.rotor_lag_python(nan, nan, 0.9, 0.8, coeffs) is not None
+
+
 def _fly(vehicle_name: str, mode: str, steps: int) -> list[bytes]:
     """Every physics step's truth of a faithful vehicle flown by fixed setpoints that tilt and turn it."""
     vehicle = load_vehicle(vehicle_name)
@@ -103,10 +152,13 @@ def _fly(vehicle_name: str, mode: str, steps: int) -> list[bytes]:
 
 @needs_compiled
 @pytest.mark.parametrize(("vehicle", "mode"), [("cf21", "attitude"), ("cf2x", "moments")])  # cf2x: rotor drag
-def test_a_flight_on_the_compiled_step_is_the_flight_on_the_twin(monkeypatch, vehicle, mode):
+def test_a_flight_on_the_compiled_kernels_is_the_flight_on_the_twins(monkeypatch, vehicle, mode):
     assert load_vehicle("cf2x").rotor_drag_coefficient > 0.0
+    assert load_vehicle(vehicle).motor_time_constant_s > 0.0  # the lag runs
     compiled = _fly(vehicle, mode, 3000)
     monkeypatch.setattr(dynamics, "rk4", dynamics_kernels.rk4_python)
+    monkeypatch.setattr(dynamics, "rotor_lag", dynamics_kernels.rotor_lag_python)
+    monkeypatch.setattr(dynamics, "rotor_inputs", dynamics_kernels.rotor_inputs_python)
     twin = _fly(vehicle, mode, 3000)
     assert compiled == twin
     assert len(set(compiled)) == len(compiled)  # airborne and moving every step: no two states compared alike
