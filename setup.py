@@ -1,5 +1,6 @@
 """The compiled parts of cfstack (everything else is in pyproject.toml): estimator/_eskf_kernels.c (the
-estimator's per-sample propagation) and simulator/_dynamics_kernels.c (the rigid body's RK4 step).
+estimator's per-sample propagation and Kalman steps), simulator/_dynamics_kernels.c (the rigid body's RK4 step,
+the rotors' lag) and simulator/crazyflie/_drive_kernel.c (the faithful firmware's drive chain).
 
 Optional: where they cannot be built (no C compiler), pip installs cfstack without them and the estimator
 and the simulator run their Python twins (estimator/eskf_kernels.py, simulator/dynamics_kernels.py), which
@@ -13,4 +14,5 @@ from setuptools import Extension, setup
 setup(ext_modules=[Extension(name, [source], depends=["model/_kernels.h"], extra_compile_args=["-ffp-contract=off"],
                              optional=True)
                    for name, source in (("estimator._eskf_kernels", "estimator/_eskf_kernels.c"),
-                                        ("simulator._dynamics_kernels", "simulator/_dynamics_kernels.c"))])
+                                        ("simulator._dynamics_kernels", "simulator/_dynamics_kernels.c"),
+                                        ("simulator.crazyflie._drive_kernel", "simulator/crazyflie/_drive_kernel.c"))])

@@ -201,10 +201,14 @@ def emulator_command(argv: list[str]) -> int:
                  radio_link, config.seed,
                  config.prefix, config.vehicles, emulator.lockstep.lookahead_horizon_s() * 1e3)
         from simulator import dynamics_kernels  # loaded already (the dynamics): asked here for the warning only
+        from simulator.crazyflie import drive_kernel
 
-        if not dynamics_kernels.COMPILED:
-            log.warning("emulator: its compiled RK4 step was not built (no C compiler at pip install?): the Python "
-                        "twin runs, same results, slower (README: Lockstep speed)")
+        missing = [name for name, compiled in (("RK4 step and rotor lag", dynamics_kernels.COMPILED),
+                                               ("faithful firmware's drive chain", drive_kernel.COMPILED)) if not compiled]
+        if missing:
+            log.warning("emulator: its compiled %s not built (no C compiler at pip install?): the Python "
+                        "runs, same results, slower (README: Lockstep speed)",
+                        " and ".join(missing) + (" were" if len(missing) > 1 else " was"))
         emulator.run()
     if args.radio_ledger:
         emulator.write_radio_report(args.radio_ledger)

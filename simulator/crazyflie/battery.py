@@ -43,7 +43,10 @@ class Battery:
 
     def power_w(self, forces_n) -> float:
         per_n, k = 1.0 / self.motor_hover_n, self.k
-        return self.motor_hover_w * sum((max(f, 0.0) * per_n) ** k for f in forces_n)
+        total = 0.0  # summed in motor order, one addition at a time (the compiled drive kernel does the same)
+        for f in forces_n:
+            total += (max(f, 0.0) * per_n) ** k
+        return self.motor_hover_w * total
 
     def step(self, forces_n, dt_s: float) -> float:
         """Draw the motors' power for dt_s; the terminal voltage (V) under that load."""

@@ -49,6 +49,7 @@ from link.messages import (
 from model.config import Params, resolve
 from model.frames import attitude_error, euler_zyx_of
 from model.vehicle import GRAVITY_MPS2, Vehicle
+from simulator.crazyflie import drive_kernel
 from simulator.crazyflie.attitude_controller import AttitudeController
 from simulator.crazyflie.battery import Battery
 from simulator.crazyflie.commander_rpyt import RpytDecoder
@@ -213,6 +214,10 @@ class CrazyflieFirmware(Firmware):
         self._supply_b = 1.0 - (1.0 - cf.compensation_b_per_1khz) ** 2
         self.supply_v = cf.initial_supply_v
         self._k_thrust = vehicle.k_thrust
+        self._drive_constants = None  # _drive's compiled kernel takes these; None: the Python drives
+        if drive_kernel.COMPILED and "battery" not in self.ideal:
+            self._drive_constants = drive_kernel.drive_constants(cf.curve, cf.idle_thrust_pwm, self._supply_b,
+                                                                 self.battery, self.tick_period_s, self._k_thrust)
         self._estimator_every = max(1, round(vehicle.imu.rate_hz / cf.estimator_rate_hz))
         self._estimator_dt_s = self._estimator_every / vehicle.imu.rate_hz
         self._imu_count = 0
@@ -634,7 +639,18 @@ class CrazyflieFirmware(Firmware):
         return _legacy_rpy_deg(self._body.attitude_wxyz), (w[0] * DEG_PER_RAD, w[1] * DEG_PER_RAD, w[2] * DEG_PER_RAD)
 
     def _drive(self, uncapped) -> tuple[float, ...]:
-        """Battery compensation, the cap, then the motors on the battery's true voltage."""
+        """Battery compensation, the cap, then the motors on the battery's true voltage: compiled
+        (drive_kernel) where it was built and the battery is not ablated, else _drive_python."""
+        if self._drive_constants is not None:
+            b = self.battery
+            out = drive_kernel.drive(uncapped, self.supply_v, b.voltage_v, b.drawn_as, self._drive_constants)
+            if out is not None:
+                self.motor_pwm, self.motor_forces_n, speeds, self.supply_v, b.voltage_v, b.current_a, b.drawn_as = out
+                return MOTORS_OFF if speeds is None else speeds
+        return self._drive_python(uncapped)
+
+    def _drive_python(self, uncapped) -> tuple[float, ...]:
+        """_drive in Python (the compiled kernel's twin, and what runs where it was not built)."""
         cf, curve = self.cf, self.cf.curve
         if "battery" in self.ideal:
             self.battery.voltage_v = self.battery.full_v

@@ -1,0 +1,170 @@
+"""The faithful firmware's compiled drive chain (simulator/crazyflie/_drive_kernel.c) gives the Python's bits
+(CrazyflieFirmware._drive_python): battery compensation, the cap, the motor forces, the battery's draw and the
+rotor speeds, cycle by cycle on random commands and battery states, and over whole flights (issue 19:
+behaviour unchanged). What the chain computes is checked against the firmware's definitions in
+test_crazyflie_parts.py and test_crazyflie_crtp.py (the compensation inverts the thrust curve, the battery
+sags by R I)."""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+
+import numpy as np
+import pytest
+
+from link.messages import AttitudeTarget, ExternalPose, ThrustMoment
+from model.frames import quat_from_euler_zyx
+from model.vehicle import load_mocap_room, load_vehicle
+from simulator.crazyflie import drive_kernel
+from simulator.crazyflie.stabilizer import CrazyflieFirmware, load_crazyflie_params
+from simulator.firmware import MOTORS_OFF, load_firmware_params
+from simulator.vehicle_sim import SimVehicle
+
+needs_compiled = pytest.mark.skipif(
+    not drive_kernel.COMPILED,
+    reason="simulator/crazyflie/_drive_kernel.c was not built (no C compiler at pip install): the Python drives")
+
+STATE = ("supply_v", "battery.voltage_v", "battery.current_a", "battery.drawn_as")
+
+
+def _firmware(**curve_changes) -> CrazyflieFirmware:
+    cf = load_crazyflie_params()
+    if curve_changes:
+        cf = dataclasses.replace(cf, curve=dataclasses.replace(cf.curve, **curve_changes))
+    return CrazyflieFirmware(load_vehicle("cf21"), load_firmware_params(), cf)
+
+
+def _get(fw, name: str):
+    obj = fw
+    for part in name.split(".")[:-1]:
+        obj = getattr(obj, part)
+    return getattr(obj, name.split(".")[-1])
+
+
+def _set(fw, name: str, value) -> None:
+    obj = fw
+    for part in name.split(".")[:-1]:
+        obj = getattr(obj, part)
+    setattr(obj, name.split(".")[-1], value)
+
+
+def _bits(values) -> bytes:
+    return struct.pack(f"{len(values)}d", *values)
+
+
+def _outcome(fw, speeds) -> tuple:
+    """What a cycle leaves: the speeds, the PWM (ints, compared exactly), forces and state (compared as bits)."""
+    floats = [*fw.motor_forces_n, *(_get(fw, name) for name in STATE)]
+    return (speeds if speeds is MOTORS_OFF else _bits(speeds)), tuple(fw.motor_pwm), _bits(floats), \
+        tuple(type(p) for p in fw.motor_pwm)
+
+
+def _both(fw, uncapped, state: dict):
+    """The cycle on the compiled kernel (through _drive, as the firmware runs it) and on the Python, from the
+    same state; each as _outcome, or the exception it raised."""
+    results = []
+    for run in (fw._drive, fw._drive_python):
+        for name, value in state.items():
+            _set(fw, name, value)
+        try:
+            results.append(_outcome(fw, run(uncapped)))
+        except (ArithmeticError, ValueError, TypeError) as error:
+            results.append(type(error))
+    return results
+
+
+def _random_state(rng: np.random.Generator, fw) -> dict:
+    b = fw.battery
+    return {"supply_v": float(rng.choice([rng.uniform(1.0, 4.5), fw.cf.curve.min_supply_v])),
+            "battery.voltage_v": float(rng.uniform(2.5, 4.3)), "battery.current_a": float(rng.uniform(0.0, 10.0)),
+            "battery.drawn_as": float(rng.choice([rng.uniform(0.0, b.capacity_as), 1.5 * b.capacity_as]))}
+
+
+def _random_command(rng: np.random.Generator) -> tuple[int, int, int, int]:
+    kind = rng.integers(4)
+    if kind == 0:
+        return (0, 0, 0, 0)  # disarmed
+    if kind == 1:  # above the cap: the shift down
+        return tuple(int(v) for v in rng.integers(40000, 140000, 4))
+    return tuple(int(v) for v in rng.integers(-70000, 70000, 4))  # the legacy mixer's sums go negative too
+
+
+@needs_compiled
+def test_compiled_drive_is_the_pythons_bit_for_bit():
+    fw = _firmware()
+    assert fw._drive_constants is not None  # the kernel drives
+    rng = np.random.default_rng(21)
+    off = capped = sagged_past_the_peak = 0
+    for _ in range(20000):
+        uncapped, state = _random_command(rng), _random_state(rng, fw)
+        compiled, python = _both(fw, uncapped, state)
+        assert compiled == python, (uncapped, state)
+        off += compiled[0] is MOTORS_OFF
+        capped += max(compiled[1]) == fw.cf.curve.pwm_max
+        # past the battery's maximum power point the terminal voltage is half the open-circuit one
+        sagged_past_the_peak += fw.battery.voltage_v == 0.5 * fw.battery.empty_v and state["battery.drawn_as"] > \
+            fw.battery.capacity_as
+    assert off > 1000 and capped > 1000 and sagged_past_the_peak > 100, (off, capped, sagged_past_the_peak)
+
+
+@needs_compiled
+def test_the_kernel_leaves_to_the_python_what_it_does_not_do_alike():
+    """Commands that are not a tuple of 4 ints within 2^53, and constants Python would refuse (a division by
+    zero, the square root of a negative): the kernel answers None, and _drive gives what the Python gives,
+    errors included."""
+    fw = _firmware()
+    state = {name: _get(fw, name) for name in STATE}
+    args = (state["supply_v"], state["battery.voltage_v"], state["battery.drawn_as"], fw._drive_constants)
+    for uncapped in ([30000] * 4, (30000, 30000, 30000), (30000.0, 30000, 30000, 30000), (2**60, 0, 0, 0),
+                     (True, 0, 0, 0)):
+        assert drive_kernel.drive(uncapped, *args) is None
+        compiled, python = _both(fw, uncapped, state)
+        assert compiled == python
+    assert drive_kernel.drive((30000,) * 4, *args) is not None
+    for changes in ({"v3": 0.0}, {"pwm_max": 0}, {"v2": 1e3, "v1": 1e3}):
+        odd = _firmware(**changes)
+        compiled, python = _both(odd, (30000,) * 4, state)
+        assert compiled == python
+    with pytest.raises(TypeError, match="drive takes 5 arguments"):
+        drive_kernel.drive((0, 0, 0, 0), *args[:3])
+    with pytest.raises(ValueError, match="constants: expected 19"):
+        drive_kernel.drive((0, 0, 0, 0), *args[:3], args[3][:18])
+
+
+def _fly(mode: str, steps: int) -> list[bytes]:
+    """Every 500 Hz cycle's PWM, forces, battery and truth of the faithful vehicle flown by fixed setpoints
+    that tilt and turn it, with the mocap pose streamed as extpose."""
+    vehicle = load_vehicle("cf21")
+    sim = SimVehicle(vehicle, np.random.default_rng(4), mocap_room=load_mocap_room("vicon"),
+                     initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True, firmware="crazyflie")
+    assert (sim.firmware._drive_constants is not None) == drive_kernel.COMPILED  # which one drives
+    out = []
+    for k in range(steps):
+        t = sim.t_s
+        if k % 10 == 0:
+            truth = sim.truth
+            sim.handle_uplink(ExternalPose(t, truth.position_enu_m, truth.attitude_wxyz), t)
+            if mode == "attitude":
+                tilt = quat_from_euler_zyx(0.3 * np.sin(t), 0.2 * np.cos(2.0 * t), 0.1)
+                sim.handle_uplink(AttitudeTarget(t, 1.1 * vehicle.weight_n, tuple(tilt)), t)
+            else:
+                wobble = (2e-5 * np.sin(5.0 * t), -2e-5 * np.cos(3.0 * t), 1e-5)
+                sim.handle_uplink(ThrustMoment(t, 1.05 * vehicle.weight_n, wobble), t)
+        sim.step()
+        sim.pop_outputs()
+        fw, truth = sim.firmware, sim.truth
+        out.append(repr(fw.motor_pwm).encode() + _bits([*fw.motor_forces_n, fw.supply_v, fw.battery.voltage_v,
+                                                        fw.battery.drawn_as, *truth.position_enu_m,
+                                                        *truth.attitude_wxyz]))
+    return out
+
+
+@needs_compiled
+@pytest.mark.parametrize("mode", ["attitude", "moments"])
+def test_a_flight_on_the_compiled_drive_is_the_flight_on_the_python(monkeypatch, mode):
+    compiled = _fly(mode, 3000)
+    monkeypatch.setattr(drive_kernel, "COMPILED", False)  # firmwares made now drive in Python
+    python = _fly(mode, 3000)
+    assert compiled == python
+    assert len(set(compiled)) == len(compiled)  # airborne, drawing and moving every step
