@@ -50,7 +50,9 @@ class ForceTorqueMixer:
 
     def pwm(self, thrust_n: float, torque_flu_nm) -> tuple[int, int, int, int]:
         scale = self.pwm_per_n
-        return tuple(_int32(max(f, 0.0) * scale) for f in self.forces_n(thrust_n, torque_flu_nm))
+        f0, f1, f2, f3 = self.forces_n(thrust_n, torque_flu_nm)  # written out: 500 Hz, on the emulator's every tick
+        return (_int32(max(f0, 0.0) * scale), _int32(max(f1, 0.0) * scale), _int32(max(f2, 0.0) * scale),
+                _int32(max(f3, 0.0) * scale))
 
 
 def cap(uncapped, pwm_max: int, idle_pwm: int) -> tuple[int, int, int, int]:
