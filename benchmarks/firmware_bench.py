@@ -1,24 +1,28 @@
 """Benchmark: what the faithful firmware (--firmware crazyflie) costs against the ideal one, in the same run.
 
-Takes in: --seconds of simulated hover per in-process run, --repeats (interleaved), --skip-flights.
+Takes in: --seconds of simulated hover per in-process run, --repeats (interleaved), --skip-flights,
+--baseline REV (a git revision whose vehicle is timed in the same runs).
 Gives out (printed):
 1. in-process, no radio: microseconds per physics step (1 kHz) of one cf21 vehicle hovering, ideal and
    faithful firmware interleaved, in moments mode (ThrustMoment setpoints at 500 Hz) and attitude mode
    (AttitudeTarget at 100 Hz plus the mocap pose as ExternalPose at 100 Hz), with the faithful/ideal ratio
-   (median of the repeats);
+   (median of the repeats); with --baseline, each run is a child process, the baseline's (its tree
+   extracted, its kernels built) interleaved with this tree's, and the table adds the baseline's us/step
+   and new/baseline per firmware;
 2. lockstep flights through the link (`cfstack fly`, esb-duplex profile, MAVLink's default: the built-in circle, and the
    test_lab_1 maze from ../shared/worlds when present): real-time factor of the flight loop per mode and
    firmware, and the ratio. Issue 15's floor: moments mode at 500 Hz at least 5x real time with the faithful firmware.
 
 The setpoints come from the truth, the thrust holding the height on it (emulator_bench.HeightHold), a
 stand-in for the ground station: this measures the vehicle, airborne throughout, not a controller.
-Run: python benchmarks/firmware_bench.py [--seconds 10] [--repeats 3] [--skip-flights]
+Run: python benchmarks/firmware_bench.py [--seconds 10] [--repeats 3] [--skip-flights] [--baseline REV]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -27,8 +31,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_paths import SHARED_WORLDS
+from bench_paths import NEUTRAL_CWD, SHARED_WORLDS
 from emulator_bench import LEVEL_WXYZ, HeightHold
+from git_baseline import baseline_tree
 
 from link.messages import AttitudeTarget, ExternalPose, MocapPose, ThrustMoment
 from model.vehicle import load_mocap_room, load_vehicle
@@ -62,6 +67,46 @@ def hover_in_process(firmware: str, mode: str, seconds: float, seed: int) -> flo
         sim.step()
         sim.pop_outputs()
     return (time.perf_counter() - start) / total_steps * 1e6
+
+
+# One hover_in_process run in a child process from a tree (its own firmware_bench, its own kernels)
+HOVER_SCRIPT = """
+import sys
+sys.path.insert(0, {benchmarks!r})
+import firmware_bench
+print(firmware_bench.hover_in_process({firmware!r}, {mode!r}, {seconds!r}, {seed!r}))
+"""
+
+
+def hover_in_tree(tree: Path, firmware: str, mode: str, seconds: float, seed: int) -> float:
+    """hover_in_process as the code of `tree` runs it, in a fresh process (us per physics step)."""
+    script = HOVER_SCRIPT.format(benchmarks=str(tree / "benchmarks"), firmware=firmware, mode=mode, seconds=seconds,
+                                 seed=seed)
+    run = subprocess.run([sys.executable, "-c", script], cwd=NEUTRAL_CWD, env={**os.environ, "PYTHONPATH": str(tree)},
+                         capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
+    if run.returncode != 0:
+        raise SystemExit(f"firmware_bench: the hover in {tree} failed: {run.stderr.strip()[-300:]}")
+    return float(run.stdout.strip().splitlines()[-1])
+
+
+def baseline_table(seconds: float, repeats: int, rev: str) -> None:
+    """Section 1 against a git baseline: every run a child process, the baseline's and this tree's interleaved."""
+    here = Path(__file__).resolve().parents[1]
+    print(f"1. In-process hover, one {VEHICLE} vehicle, {seconds:g} s simulated per run, {repeats} interleaved "
+          f"repeats (median), git {rev} against this tree, each run a child process")
+    print(f"{'mode':<10} {'firmware':<10} {'git ' + rev + ' us/step':>18} {'new us/step':>12} {'new/base':>9}")
+    with tempfile.TemporaryDirectory() as tmp:
+        base = baseline_tree(rev, Path(tmp))
+        for mode in ("moments", "attitude"):
+            times = {(tree, f): [] for tree in ("base", "new") for f in FIRMWARES}
+            for r in range(repeats):
+                for firmware in FIRMWARES:
+                    for name, tree in (("base", base), ("new", here)):
+                        times[name, firmware].append(hover_in_tree(tree, firmware, mode, seconds, seed=r))
+                print(f"   [{mode}] repeat {r + 1}/{repeats}", file=sys.stderr, flush=True)  # progress
+            for firmware in FIRMWARES:
+                b, n = (statistics.median(times[name, firmware]) for name in ("base", "new"))
+                print(f"{mode:<10} {firmware:<10} {b:>18.1f} {n:>12.1f} {n / b:>9.2f}")
 
 
 def in_process_table(seconds: float, repeats: int) -> None:
@@ -119,8 +164,12 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--skip-flights", action="store_true")
+    p.add_argument("--baseline", metavar="REV", help="git revision whose vehicle section 1 times in the same runs")
     args = p.parse_args()
-    in_process_table(args.seconds, args.repeats)
+    if args.baseline:
+        baseline_table(args.seconds, args.repeats, args.baseline)
+    else:
+        in_process_table(args.seconds, args.repeats)
     if not args.skip_flights:
         flights_table()
     return 0

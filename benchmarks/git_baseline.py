@@ -36,9 +36,15 @@ def baseline_modules(rev: str, modules: dict[str, str], workdir: Path) -> dict[s
 
 
 def baseline_tree(rev: str, tmp: Path) -> Path:
-    """The repository at git revision `rev`, extracted (git archive) into tmp/baseline."""
+    """The repository at git revision `rev`, extracted (git archive) into tmp/baseline, with its compiled
+    kernels built in place where it has any (a setup.py), as `pip install` builds them: a baseline runs
+    what it shipped, not its slower Python twins. Without a compiler the build fails quietly (the kernels
+    are optional there too) and the twins run."""
     tree = tmp / "baseline"
     tree.mkdir()
     archive = subprocess.run(["git", "archive", rev], cwd=REPO, capture_output=True, check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    if (tree / "setup.py").is_file():
+        subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], cwd=tree, capture_output=True,
+                       stdin=subprocess.DEVNULL, timeout=600)
     return tree
