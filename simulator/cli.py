@@ -203,12 +203,12 @@ def emulator_command(argv: list[str]) -> int:
         from simulator import dynamics_kernels  # loaded already (the dynamics): asked here for the warning only
         from simulator.crazyflie import drive_kernel
 
-        missing = [name for name, compiled in (("RK4 step and rotor lag", dynamics_kernels.COMPILED),
-                                               ("faithful firmware's drive chain", drive_kernel.COMPILED)) if not compiled]
+        missing = [name for name, compiled in (("the RK4 step and rotor lag", dynamics_kernels.COMPILED),
+                                               ("the faithful firmware's drive chain", drive_kernel.COMPILED))
+                   if not compiled]
         if missing:
-            log.warning("emulator: its compiled %s not built (no C compiler at pip install?): the Python "
-                        "runs, same results, slower (README: Lockstep speed)",
-                        " and ".join(missing) + (" were" if len(missing) > 1 else " was"))
+            log.warning("emulator: compiled kernels not built (no C compiler at pip install?): %s; their Python "
+                        "twins run, same results, slower (README: Lockstep speed)", "; ".join(missing))
         emulator.run()
     if args.radio_ledger:
         emulator.write_radio_report(args.radio_ledger)
