@@ -1,17 +1,21 @@
-/* Compiled twin of the faithful firmware's drive chain, CrazyflieFirmware._drive_python
-(simulator/crazyflie/stabilizer.py), once per 500 Hz stabilizer cycle (issue 19).
+/* Compiled twins of the faithful firmware's power stage, once per 500 Hz stabilizer cycle (issue 19):
+drive, of the drive chain CrazyflieFirmware._drive_python (simulator/crazyflie/stabilizer.py), and
+force_torque_pwm, of power_distribution.ForceTorqueMixer.pwm.
 
-Takes in: the four uncapped motor commands (a tuple of 4 ints, PWM units), the filtered supply voltage the
-firmware measures (V), the battery's terminal voltage (V) and charge drawn (A s), and the constants of
-drive_kernel.drive_constants (N_CONSTANTS floats: the thrust curve, the PWM and idle limits, the
-supply filter, the battery, the step, k_T).
-Gives out: (motor PWM: a tuple of 4 ints; motor forces N: a tuple of 4 floats; rotor speeds rad/s: a tuple of
-4 floats, or None for motors off; the new supply voltage V; the battery's new terminal voltage V, current A
-and charge drawn A s), or None where the chain leaves what this file does alike with the Python (a command
-that is not a tuple of 4 ints within 2^53, a value Python would refuse: the square root of a negative, a
-negative number to a fractional power, a division by zero, an overflow, a result that is not a finite
-int): the caller then
-runs the Python, which gives what Python gives, errors included.
+drive takes in: the four uncapped motor commands (a tuple of 4 ints, PWM units), the filtered supply voltage
+the firmware measures (V), the battery's terminal voltage (V) and charge drawn (A s), and the constants of
+drive_kernel.drive_constants (N_CONSTANTS floats: the thrust curve, the PWM and idle limits, the supply
+filter, the battery, the step, k_T).
+It gives out: (motor PWM: a tuple of 4 ints; motor forces N: a tuple of 4 floats; rotor speeds rad/s: a tuple
+of 4 floats, or None for motors off; the new supply voltage V; the battery's new terminal voltage V, current A
+and charge drawn A s).
+force_torque_pwm takes in: the collective thrust (N), the torques (3 floats, N m, body FLU) and the mixer's
+constants (0.25 / arm m, thrust-to-torque m, PWM per N); gives out the four uncapped commands (a tuple of 4
+ints, PWM units).
+Both give None where they would not do alike with the Python (a command that is not a tuple of 4 ints within
+2^53, a value Python would refuse: the square root of a negative, a negative number to a fractional power, a
+division by zero, an overflow, a result that is not an int within 2^53): the caller then runs the Python,
+which gives what Python gives, errors included.
 
 Same result as the Python, bit for bit: every expression below is the Python's in the same order, one IEEE
 double operation at a time (setup.py builds this file with -ffp-contract=off, so no multiply-add is fused);
@@ -222,10 +226,40 @@ static PyObject *drive(PyObject *self, PyObject *const *args, Py_ssize_t nargs) 
                          battery[2]);
 }
 
+/* force_torque_pwm(thrust_n, torque_flu_nm, (0.25 / arm, thrust_to_torque, pwm per N)) -> (4 ints) | None:
+   ForceTorqueMixer.pwm, the per-motor forces of the force-torque command as PWM, truncated (a force that is not
+   finite gives 0, as _int32) */
+static PyObject *force_torque_pwm(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (check_nargs("force_torque_pwm", nargs, 3) < 0) return NULL;
+    double thrust = PyFloat_AsDouble(args[0]);
+    if (thrust == -1.0 && PyErr_Occurred()) return NULL;
+    double torque[3], c[3];
+    if (read_floats(args[1], torque, 3, "torque_flu_nm") < 0 || read_floats(args[2], c, 3, "mixer") < 0) return NULL;
+    double quarter_per_arm = c[0], roll = quarter_per_arm * torque[0], pitch = quarter_per_arm * torque[1];
+    double yaw, t = 0.25 * thrust;
+    if (py_div(0.25 * torque[2], c[1], &yaw) < 0) Py_RETURN_NONE;
+    double forces[N_MOTORS] = {t - roll - pitch - yaw, t - roll + pitch + yaw, t + roll + pitch - yaw,
+                               t + roll - pitch + yaw};
+    long long pwm[N_MOTORS];
+    for (int i = 0; i < N_MOTORS; i++) {
+        double scaled = (0.0 > forces[i] ? 0.0 : forces[i]) * c[2];
+        if (!isfinite(scaled)) {
+            pwm[i] = 0;
+            continue;
+        }
+        if (!(fabs(scaled) < EXACT_INT_LIMIT)) Py_RETURN_NONE;
+        pwm[i] = (long long)scaled;
+    }
+    return int_tuple(pwm);
+}
+
 static PyMethodDef methods[] = {
     {"drive", (PyCFunction)(void (*)(void))drive, METH_FASTCALL,
      "drive(uncapped, supply_v, battery_v, drawn_as, constants) -> (pwm, forces, speeds | None, supply_v, "
      "battery_v, current_a, drawn_as) | None (simulator.crazyflie.drive_kernel)"},
+    {"force_torque_pwm", (PyCFunction)(void (*)(void))force_torque_pwm, METH_FASTCALL,
+     "force_torque_pwm(thrust_n, torque_flu_nm, mixer) -> (4 ints) | None (simulator.crazyflie.drive_kernel)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+from simulator.crazyflie import drive_kernel
 from simulator.crazyflie.controller_pid import LegacyControl
 
 SQRT_HALF = 0.707106781  # the firmware's literal (0.707106781f)
@@ -39,6 +40,9 @@ class ForceTorqueMixer:
         self.arm_m = SQRT_HALF * arm_length_m
         self.thrust_to_torque_m = thrust_to_torque_m
         self.pwm_per_n = pwm_max / thrust_max_n
+        # pwm's compiled twin takes these (simulator/crazyflie/_drive_kernel.c); None: pwm_python runs
+        self._compiled = (0.25 / self.arm_m, float(thrust_to_torque_m), self.pwm_per_n) if drive_kernel.COMPILED \
+            else None
 
     def forces_n(self, thrust_n: float, torque_flu_nm) -> tuple[float, float, float, float]:
         """The per-motor forces before clipping (N)."""
@@ -49,6 +53,14 @@ class ForceTorqueMixer:
         return (t - roll - pitch - yaw, t - roll + pitch + yaw, t + roll + pitch - yaw, t + roll - pitch + yaw)
 
     def pwm(self, thrust_n: float, torque_flu_nm) -> tuple[int, int, int, int]:
+        """The uncapped motor commands (PWM units): compiled where it was built, else pwm_python (the same)."""
+        if self._compiled is not None:
+            out = drive_kernel.force_torque_pwm(thrust_n, torque_flu_nm, self._compiled)
+            if out is not None:
+                return out
+        return self.pwm_python(thrust_n, torque_flu_nm)
+
+    def pwm_python(self, thrust_n: float, torque_flu_nm) -> tuple[int, int, int, int]:
         scale = self.pwm_per_n
         f0, f1, f2, f3 = self.forces_n(thrust_n, torque_flu_nm)  # written out: 500 Hz, on the emulator's every tick
         return (_int32(max(f0, 0.0) * scale), _int32(max(f1, 0.0) * scale), _int32(max(f2, 0.0) * scale),

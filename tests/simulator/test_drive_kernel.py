@@ -1,9 +1,9 @@
-"""The faithful firmware's compiled drive chain (simulator/crazyflie/_drive_kernel.c) gives the Python's bits
-(CrazyflieFirmware._drive_python): battery compensation, the cap, the motor forces, the battery's draw and the
-rotor speeds, cycle by cycle on random commands and battery states, and over whole flights (issue 19:
-behaviour unchanged). What the chain computes is checked against the firmware's definitions in
-test_crazyflie_parts.py and test_crazyflie_crtp.py (the compensation inverts the thrust curve, the battery
-sags by R I)."""
+"""The faithful firmware's compiled power stage (simulator/crazyflie/_drive_kernel.c) gives the Python's bits:
+the drive chain (CrazyflieFirmware._drive_python: battery compensation, the cap, the motor forces, the
+battery's draw and the rotor speeds) and the force-torque mixer (ForceTorqueMixer.pwm_python), cycle by
+cycle on random commands and battery states, and over whole flights (issue 19: behaviour unchanged). What
+the chain computes is checked against the firmware's definitions in test_crazyflie_parts.py and
+test_crazyflie_crtp.py (the compensation inverts the thrust curve, the battery sags by R I)."""
 
 from __future__ import annotations
 
@@ -132,13 +132,41 @@ def test_the_kernel_leaves_to_the_python_what_it_does_not_do_alike():
         drive_kernel.drive((0, 0, 0, 0), *args[:3], args[3][:18])
 
 
+@needs_compiled
+def test_compiled_force_torque_mixer_is_the_pythons():
+    """ForceTorqueMixer.pwm (compiled) against pwm_python: random commands, negative forces, non-finite ones
+    (0, as the firmware's int32 conversion here), and values past 2^53 handed to the Python."""
+    mixer = _firmware().force_torque
+    assert mixer._compiled is not None
+    rng = np.random.default_rng(22)
+    special = [float("nan"), float("inf"), -float("inf"), 1e300, -0.0]
+    clipped = 0
+    for _ in range(20000):
+        thrust = float(rng.uniform(-0.2, 0.8))
+        torque = tuple(float(v) for v in rng.normal(scale=3e-3, size=3))
+        if rng.random() < 0.05:
+            thrust = special[rng.integers(len(special))]
+        if rng.random() < 0.05:
+            torque = (torque[0], special[rng.integers(len(special))], torque[2])
+        compiled, python = mixer.pwm(thrust, torque), mixer.pwm_python(thrust, torque)
+        assert compiled == python and all(type(p) is int for p in compiled), (thrust, torque)
+        clipped += 0 in compiled
+    assert clipped > 1000
+    assert drive_kernel.force_torque_pwm(1e300, (0.0, 0.0, 0.0), mixer._compiled) is None  # past 2^53: Python's
+    with pytest.raises(ValueError, match="torque_flu_nm: expected 3"):
+        drive_kernel.force_torque_pwm(0.3, (0.0, 0.0), mixer._compiled)
+    with pytest.raises(TypeError):
+        drive_kernel.force_torque_pwm("0.3", (0.0, 0.0, 0.0), mixer._compiled)
+
+
 def _fly(mode: str, steps: int) -> list[bytes]:
     """Every 500 Hz cycle's PWM, forces, battery and truth of the faithful vehicle flown by fixed setpoints
     that tilt and turn it, with the mocap pose streamed as extpose."""
     vehicle = load_vehicle("cf21")
     sim = SimVehicle(vehicle, np.random.default_rng(4), mocap_room=load_mocap_room("vicon"),
                      initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True, firmware="crazyflie")
-    assert (sim.firmware._drive_constants is not None) == drive_kernel.COMPILED  # which one drives
+    fw = sim.firmware
+    assert (fw._drive_constants is not None) == (fw.force_torque._compiled is not None) == drive_kernel.COMPILED
     out = []
     for k in range(steps):
         t = sim.t_s
