@@ -17,7 +17,7 @@ one IEEE double operation at a time (setup.py builds this file with -ffp-contrac
 is fused), and sqrt, sin and cos are the C library's, which CPython's math module calls too.
 tests/estimator/test_eskf_kernels.py checks the bits against the twin. */
 
-#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float, check_nargs */
+#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float, float_tuple, check_nargs */
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -134,20 +134,6 @@ static int put_transition(PyObject *F_obj, PyObject *index_obj, const double v[N
     PyBuffer_Release(&index);
     PyBuffer_Release(&F);
     return ok ? 0 : -1;
-}
-
-static PyObject *float_tuple(const double *v, Py_ssize_t n) {
-    PyObject *t = PyTuple_New(n);
-    if (t == NULL) return NULL;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *item = PyFloat_FromDouble(v[i]);
-        if (item == NULL) {
-            Py_DECREF(t);
-            return NULL;
-        }
-        PyTuple_SET_ITEM(t, i, item);
-    }
-    return t;
 }
 
 /* propagate(x, f0, w0, f1, w1, dt, g, F, index) -> x1: eskf_kernels.propagate */

@@ -1,6 +1,7 @@
-/* What the compiled kernels (estimator/_eskf_kernels.c, simulator/_dynamics_kernels.c) share: reading
-   Python numbers into C doubles, checking a call's argument count. Included by both; setup.py lists it in
-   each extension's depends. */
+/* What the compiled kernels (estimator/_eskf_kernels.c, simulator/_dynamics_kernels.c,
+   simulator/crazyflie/_drive_kernel.c) share: reading Python numbers into C doubles, building tuples and lists
+   of floats, checking a call's argument count. Included by each; setup.py lists it in every extension's
+   depends. */
 
 #ifndef CFSTACK_KERNELS_H
 #define CFSTACK_KERNELS_H
@@ -42,6 +43,28 @@ static inline int read_module_float(const char *module, const char *name, double
     Py_DECREF(value);
     return PyErr_Occurred() ? -1 : 0;
 }
+
+/* n doubles as a new tuple (list) of Python floats; NULL with the error set */
+static inline PyObject *float_sequence(const double *values, Py_ssize_t n, int as_list) {
+    PyObject *seq = as_list ? PyList_New(n) : PyTuple_New(n);
+    if (seq == NULL) return NULL;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *item = PyFloat_FromDouble(values[i]);
+        if (item == NULL) {
+            Py_DECREF(seq);
+            return NULL;
+        }
+        if (as_list)
+            PyList_SET_ITEM(seq, i, item);
+        else
+            PyTuple_SET_ITEM(seq, i, item);
+    }
+    return seq;
+}
+
+static inline PyObject *float_tuple(const double *values, Py_ssize_t n) { return float_sequence(values, n, 0); }
+
+static inline PyObject *float_list(const double *values, Py_ssize_t n) { return float_sequence(values, n, 1); }
 
 /* -1 with TypeError unless a kernel got its `expected` number of arguments */
 static inline int check_nargs(const char *kernel, Py_ssize_t nargs, Py_ssize_t expected) {

@@ -19,7 +19,8 @@ The twin reads a middle or end wrench only when it is another object than the on
 the same either way, so this file always reads them. tests/simulator/test_dynamics_kernels.py checks the
 bits against the twin. */
 
-#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float, check_nargs */
+#include "../model/_kernels.h" /* includes Python.h; read_floats, read_module_float, float_tuple, float_list,
+                                  check_nargs */
 #include <math.h>
 
 #define N_STATE 13
@@ -40,34 +41,6 @@ static void drag_world(double qw, double qx, double qy, double qz, double vx, do
     out[0] = (1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy;
     out[1] = 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy;
     out[2] = 2.0 * (qx * qz - qw * qy) * fx + 2.0 * (qy * qz + qw * qx) * fy;
-}
-
-static PyObject *float_tuple(const double *values, Py_ssize_t n) {
-    PyObject *tuple = PyTuple_New(n);
-    if (tuple == NULL) return NULL;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *item = PyFloat_FromDouble(values[i]);
-        if (item == NULL) {
-            Py_DECREF(tuple);
-            return NULL;
-        }
-        PyTuple_SET_ITEM(tuple, i, item);
-    }
-    return tuple;
-}
-
-static PyObject *float_list(const double *values, Py_ssize_t n) {
-    PyObject *list = PyList_New(n);
-    if (list == NULL) return NULL;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *item = PyFloat_FromDouble(values[i]);
-        if (item == NULL) {
-            Py_DECREF(list);
-            return NULL;
-        }
-        PyList_SET_ITEM(list, i, item);
-    }
-    return list;
 }
 
 /* rk4(x, u0, um, u1, steps, gyro) -> list: dynamics_kernels.rk4 */

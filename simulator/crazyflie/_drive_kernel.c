@@ -23,7 +23,7 @@ double operation at a time (setup.py builds this file with -ffp-contract=off, so
 calls), sqrt and int() truncation are exact in both, and the ints stay below 2^53 (exact as doubles).
 tests/simulator/test_drive_kernel.py checks the bits against the Python. */
 
-#include "../../model/_kernels.h" /* includes Python.h; read_floats, check_nargs */
+#include "../../model/_kernels.h" /* includes Python.h; read_floats, float_tuple, check_nargs */
 #include <math.h>
 
 #define N_MOTORS 4
@@ -175,10 +175,6 @@ static PyObject *int_tuple(const long long values[N_MOTORS]) {
     return Py_BuildValue("(LLLL)", values[0], values[1], values[2], values[3]);
 }
 
-static PyObject *float_tuple(const double values[N_MOTORS]) {
-    return Py_BuildValue("(dddd)", values[0], values[1], values[2], values[3]);
-}
-
 /* drive(uncapped, supply_v, battery_v, drawn_as, constants) -> (pwm, forces, speeds | None, supply_v,
    battery_v, current_a, drawn_as) | None: CrazyflieFirmware._drive_python */
 static PyObject *drive(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
@@ -214,8 +210,8 @@ static PyObject *drive(PyObject *self, PyObject *const *args, Py_ssize_t nargs) 
         if (py_div(forces[i], c[K_THRUST], &ratio) < 0 || ratio < 0.0) Py_RETURN_NONE; /* sqrt: ValueError */
         speeds[i] = sqrt(ratio);
     }
-    PyObject *pwm_out = int_tuple(pwm), *forces_out = float_tuple(forces);
-    PyObject *speeds_out = any ? float_tuple(speeds) : Py_NewRef(Py_None);
+    PyObject *pwm_out = int_tuple(pwm), *forces_out = float_tuple(forces, N_MOTORS);
+    PyObject *speeds_out = any ? float_tuple(speeds, N_MOTORS) : Py_NewRef(Py_None);
     if (pwm_out == NULL || forces_out == NULL || speeds_out == NULL) {
         Py_XDECREF(pwm_out);
         Py_XDECREF(forces_out);
