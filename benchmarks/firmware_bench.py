@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from bench_paths import NEUTRAL_CWD, SHARED_WORLDS
 from emulator_bench import LEVEL_WXYZ, HeightHold
-from git_baseline import baseline_tree
+from git_baseline import REPO, baseline_tree
 
 from link.messages import AttitudeTarget, ExternalPose, MocapPose, ThrustMoment
 from model.vehicle import load_mocap_room, load_vehicle
@@ -91,17 +91,16 @@ def hover_in_tree(tree: Path, firmware: str, mode: str, seconds: float, seed: in
 
 def baseline_table(seconds: float, repeats: int, rev: str) -> None:
     """Section 1 against a git baseline: every run a child process, the baseline's and this tree's interleaved."""
-    here = Path(__file__).resolve().parents[1]
     print(f"1. In-process hover, one {VEHICLE} vehicle, {seconds:g} s simulated per run, {repeats} interleaved "
           f"repeats (median), git {rev} against this tree, each run a child process")
     print(f"{'mode':<10} {'firmware':<10} {'git ' + rev + ' us/step':>18} {'new us/step':>12} {'new/base':>9}")
     with tempfile.TemporaryDirectory() as tmp:
         base = baseline_tree(rev, Path(tmp))
         for mode in ("moments", "attitude"):
-            times = {(tree, f): [] for tree in ("base", "new") for f in FIRMWARES}
+            times = {(name, f): [] for name in ("base", "new") for f in FIRMWARES}
             for r in range(repeats):
                 for firmware in FIRMWARES:
-                    for name, tree in (("base", base), ("new", here)):
+                    for name, tree in (("base", base), ("new", REPO)):
                         times[name, firmware].append(hover_in_tree(tree, firmware, mode, seconds, seed=r))
                 print(f"   [{mode}] repeat {r + 1}/{repeats}", file=sys.stderr, flush=True)  # progress
             for firmware in FIRMWARES:
