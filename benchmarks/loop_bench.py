@@ -276,12 +276,17 @@ def critical_path_table(flights, results, floor, floor_critical, measured_share)
     The emulator may not step past the tick after next before a tick's ack (the lookahead's horizon), so
     n ticks (overlapped_ticks) cost P + C of wall time, where C - the emulator's own step and the two
     zenoh hops - is read off the floor flown as the flight flies (MATCHED): C = n x floor period - P_floor.
-    Hence a flight at its floor's share (P_floor + C) / (P + C), and 80 % needs P <= (P_floor + C) / 0.8 - C."""
+    Hence a flight at its floor's share (P_floor + C) / (P + C), and 80 % needs P <= (P_floor + C) / 0.8 - C.
+    The model holds while the ground station waits for each tick. `in` is the share of ticks whose record was
+    already there when the ground station asked (it was the bottleneck: all its work per tick counts, the
+    log row and truth after the ack too), `CPU` its process's CPU time per tick (us, all threads)."""
     print("\n   critical path per tick (tick record taken -> ack sent, mean us; the rest of a tick overlaps the "
           "emulator):\n   n ticks cost P + C, C = n x floor period - P_floor (the emulator's step and two zenoh "
-          "hops; the matched floor's);\n   share of the matched floor predicted (P_floor + C) / (P + C)")
+          "hops; the matched floor's);\n   share of the matched floor predicted (P_floor + C) / (P + C); in = ticks "
+          "whose record was already there\n   when asked for (the ground station was the bottleneck), CPU = its "
+          "process's CPU us per tick (new)")
     print(f"{'flight':18} {'mode':9} {'n':>2} {'P base':>7} {'P new':>6} {'P floor':>7} {'C':>6} "
-          f"{'predicted':>9} {'measured':>8} {'P for 80%':>9}")
+          f"{'predicted':>9} {'measured':>8} {'P for 80%':>9} {'in':>5} {'CPU':>5}")
     horizon_s = Emulator(emulator_bench.make_config(DEFAULT_MAVLINK_RADIO, 1, 0)).lockstep.lookahead_horizon_s()
     for name, _ in flights:
         for mode in TARGET_RTF:
@@ -294,8 +299,12 @@ def critical_path_table(flights, results, floor, floor_critical, measured_share)
             measured = measured_share[name, mode]
             needed = (p_floor + c) / FLOOR_SHARE_TARGET - c
             base = "-" if p[0] is None else f"{p[0]:.0f}"  # a revision before the measure: not reported
+            ready, cpu = (_median_or_none([plain["timing"].get(key) for plain, _ in results[name, mode, "new"]])
+                          for key in ("tick_record_ready_fraction", "process_cpu_us_per_tick"))
+            ready_cell = "-" if ready is None else f"{ready:.0%}"
+            cpu_cell = "-" if cpu is None else f"{cpu:.0f}"
             print(f"{name:18} {mode:9} {n:2d} {base:>7} {p[1]:6.0f} {p_floor:7.0f} {c:6.0f} "
-                  f"{(p_floor + c) / (p[1] + c):9.0%} {measured:8.0%} {needed:9.0f}")
+                  f"{(p_floor + c) / (p[1] + c):9.0%} {measured:8.0%} {needed:9.0f} {ready_cell:>5} {cpu_cell:>5}")
 
 
 def _median_or_none(values: list) -> float | None:

@@ -132,6 +132,14 @@ class LockstepClock:
         # each simulated tick (benchmarks/loop_bench.py); the rest of the tick overlaps the emulator.
         self.ack_after_tick_s: list[float] = []
         self._tick_taken_s = 0.0
+        # Who waits for whom, from the first tick on: ticks whose record was already in when the loop asked
+        # for it (the ground station is then the bottleneck, and all its work per tick counts, not only the
+        # critical path), the wall time spent blocked waiting for records, and the process's CPU time (all
+        # its threads, zenoh's included) to the last tick's end.
+        self.records_ready = 0
+        self.record_wait_s = 0.0
+        self._cpu_first_s: float | None = None
+        self._cpu_last_s = 0.0
 
     def start(self) -> None:
         self.transport.send(ClockAck(-1, self.link.uplink_sent, 0, period_ns=self.period_ns,
@@ -143,6 +151,9 @@ class LockstepClock:
     def wait(self) -> float:
         tick = self._next_tick()
         self._tick_taken_s = time.perf_counter()
+        if self._cpu_first_s is None:  # from the first tick on, as the loop's wall time (TickTimer)
+            self._cpu_first_s = time.process_time()
+            self.records_ready, self.record_wait_s = 0, 0.0  # the wait for the emulator to boot is no tick's
         self.t_s = tick.time_s  # frames of this tick are received at its time (their ages depend on it)
         radio = tick.crtp_published if self.link.speaks_crtp else tick.downlink_published
         target = (radio, tick.mocap_published, tick.truth_published)
@@ -164,6 +175,18 @@ class LockstepClock:
         return self.t_s
 
     def _next_tick(self):
+        if not self._ticks:
+            self._take_ticks(0.0)  # already here? (no wait: the loop is the bottleneck this tick)
+        if self._ticks:
+            self.records_ready += 1
+            return self._ticks.popleft()
+        blocked = time.perf_counter()
+        try:
+            return self._wait_for_tick()
+        finally:
+            self.record_wait_s += time.perf_counter() - blocked
+
+    def _wait_for_tick(self):
         waited = 0.0
         while True:
             self._take_ticks(0.0 if self._ticks else 0.5)
@@ -198,14 +221,21 @@ class LockstepClock:
         self.ack_after_tick_s.append(time.perf_counter() - self._tick_taken_s)
 
     def critical_path_summary(self) -> dict:
-        """The tick record -> ack times (see __init__), microseconds: median and mean."""
+        """The tick record -> ack times (see __init__), microseconds: median and mean; the share of ticks
+        whose record was in when asked for, the mean wait for a record per tick (us) and the process's CPU
+        time per tick (us)."""
         if not self.ack_after_tick_s:
             return {}
         us = np.array(self.ack_after_tick_s) * 1e6
-        return {"ack_after_tick_us_p50": float(np.median(us)), "ack_after_tick_us_mean": float(us.mean())}
+        ticks = self.ticks
+        return {"ack_after_tick_us_p50": float(np.median(us)), "ack_after_tick_us_mean": float(us.mean()),
+                "tick_record_ready_fraction": self.records_ready / ticks,
+                "tick_record_wait_us_mean": self.record_wait_s / ticks * 1e6,
+                "process_cpu_us_per_tick": (self._cpu_last_s - self._cpu_first_s) / ticks * 1e6}
 
     def done(self) -> None:
         self.timer.stop()
+        self._cpu_last_s = time.process_time()
 
     def leave(self) -> None:
         self.transport.send(ClockAck(self.tick, self.link.uplink_sent, 0, leaving=True).pack())

@@ -68,3 +68,43 @@ def test_the_critical_path_runs_from_the_tick_record_to_the_ack_and_excludes_the
 
 def test_no_tick_no_critical_path():
     assert LockstepClock(PERIOD_S, NoFrames(), LateTicks(0)).critical_path_summary() == {}
+
+
+class AlternateTicks:
+    """The clock key: every other tick record is already in when asked for; the others arrive LATE_S after."""
+
+    rx = "test/clock"
+
+    def __init__(self, ticks: int):
+        self.records = [ClockTick(k, round(k * PERIOD_S * 1e9), 0, 0, 0).pack() for k in range(ticks)]
+        self.acks = []
+
+    def receive(self, timeout_s=0.0):
+        if not self.records or (len(self.records) % 2 == 1 and timeout_s == 0.0):
+            return []  # an odd count left: this record is late, a look without waiting finds nothing
+        if timeout_s > 0.0:
+            time.sleep(LATE_S)
+        return [self.records.pop(0)]
+
+    def send(self, data):
+        self.acks.append(unpack_ack(data))
+        return True
+
+
+def test_the_summary_says_which_records_were_in_how_long_the_loop_waited_and_its_cpu_per_tick():
+    transport = AlternateTicks(6)  # records left 6: in; 5: late; 4: in; 3: late; 2: in; 1: late
+    clock = LockstepClock(PERIOD_S, NoFrames(), transport)
+    for _ in range(6):
+        clock.wait()
+        cpu_end = time.process_time() + WORK_S  # work that uses the CPU, however busy the machine
+        while time.process_time() < cpu_end:
+            pass
+        clock.release(clock.now() + PERIOD_S)
+        clock.done()
+    summary = clock.critical_path_summary()
+    # the first tick's wait is the emulator's boot, no tick's: of the others, ticks 2 and 4 were in, 1, 3, 5 late
+    assert summary["tick_record_ready_fraction"] == 2 / 6
+    # three late records of LATE_S each over six ticks: at least that, far below a fourth one more
+    assert 3 * LATE_S / 6 * 1e6 <= summary["tick_record_wait_us_mean"] < 4 * LATE_S / 6 * 1e6
+    # six ticks' CPU work (the first tick's record taken -> the last tick done), and no more than work + waits
+    assert WORK_S * 1e6 <= summary["process_cpu_us_per_tick"] < (WORK_S + LATE_S) * 1e6
