@@ -15,4 +15,6 @@ setup(ext_modules=[Extension(name, [source], depends=["model/_kernels.h"], extra
                              optional=True)
                    for name, source in (("estimator._eskf_kernels", "estimator/_eskf_kernels.c"),
                                         ("simulator._dynamics_kernels", "simulator/_dynamics_kernels.c"),
-                                        ("simulator.crazyflie._drive_kernel", "simulator/crazyflie/_drive_kernel.c"))])
+                                        ("simulator.crazyflie._drive_kernel", "simulator/crazyflie/_drive_kernel.c"),
+                                        ("groundstation._compensation_kernel",
+                                         "groundstation/_compensation_kernel.c"))])

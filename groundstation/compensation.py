@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+from groundstation.compensation_kernel import predict_steps, step_constants
 from groundstation.controller import ControllerState, as_floats
 from model.frames import quat_integrate
 from model.vehicle import GRAVITY_MPS2, Vehicle
@@ -38,6 +39,7 @@ class LatencyCompensator:
         # Python floats: arithmetic on numpy scalars is several times slower.
         self.inertia = tuple(float(vehicle.inertia_kgm2[k, k]) for k in range(3))
         self.sent: deque[SentCommand] = deque()
+        self._constants = step_constants(step_s, self.m, self.inertia)  # the compiled steps' (compensation_kernel)
 
     def record(self, sent_s: float, thrust_n: float, moment_flu_nm, attitude_wxyz) -> None:
         self.sent.append(SentCommand(sent_s, float(thrust_n), tuple(map(float, moment_flu_nm)),
@@ -48,16 +50,30 @@ class LatencyCompensator:
     def predict(self, est, now_s: float, vehicle_minus_ground_s: float, uplink_latency_s: float) -> ControllerState:
         """State at now + uplink latency, from the estimate at est.time_s (vehicle clock).
 
-        Runs every control tick, a few model steps each: written on local floats (a numpy call on a
-        3-vector costs more than the step's arithmetic).
+        Runs every control tick, a few model steps each: the steps are compiled (compensation_kernel), with
+        _steps_python as their twin.
         """
         t = est.time_s - vehicle_minus_ground_s  # the estimate's time on our clock
         t_act = now_s + uplink_latency_s
-        px, py, pz = as_floats(est.position_enu_m)
-        vx, vy, vz = as_floats(est.velocity_enu_mps)
-        q = as_floats(est.attitude_wxyz)
-        w = as_floats(est.rate_flu_radps)
+        state = (*as_floats(est.position_enu_m), *as_floats(est.velocity_enu_mps), *as_floats(est.attitude_wxyz),
+                 *as_floats(est.rate_flu_radps))
         acting, pending = self._acting_and_pending(t, uplink_latency_s)
+        x = None
+        if predict_steps is not None:
+            x = predict_steps(t, t_act, state, acting, pending, uplink_latency_s, self._constants,
+                              self.mode == "attitude")
+        if x is None:  # not built, or a prediction the kernel leaves to the Python (its errors included)
+            x = self._steps_python(t, t_act, state, acting, pending, uplink_latency_s)
+        return ControllerState(position_enu_m=x[0:3], velocity_enu_mps=x[3:6], attitude_wxyz=x[6:10],
+                               rate_flu_radps=x[10:13])
+
+    def _steps_python(self, t: float, t_act: float, state: tuple, acting: SentCommand | None,
+                      pending: list[SentCommand], uplink_latency_s: float) -> tuple:
+        """The state at t_act from `state` at t (13 floats: position, velocity, attitude wxyz, rate), the
+        commands acting in between held as sent; the compiled kernel's twin. Written on local floats (a
+        numpy call on a 3-vector costs more than the step's arithmetic)."""
+        px, py, pz, vx, vy, vz = state[0:6]
+        q, w = state[6:10], state[10:13]
         attitude_mode = self.mode == "attitude"
         step_s, m = self.step_s, self.m
         arrived, count = 0, len(pending)  # pending is in sending order, and t only grows: one forward pass
@@ -85,8 +101,7 @@ class LatencyCompensator:
             px, py, pz = px + dt * vx + half_dt2 * ax, py + dt * vy + half_dt2 * ay, pz + dt * vz + half_dt2 * az
             vx, vy, vz = vx + dt * ax, vy + dt * ay, vz + dt * az
             t += dt
-        return ControllerState(position_enu_m=(px, py, pz), velocity_enu_mps=(vx, vy, vz),
-                               attitude_wxyz=tuple(q), rate_flu_radps=tuple(w))
+        return (px, py, pz, vx, vy, vz, *q, *w)
 
     def _acting_and_pending(self, t: float, uplink_latency_s: float) -> tuple[SentCommand | None, list[SentCommand]]:
         """The newest command that has reached the vehicle by time t (our clock), and those sent after it.
