@@ -17,4 +17,5 @@ setup(ext_modules=[Extension(name, [source], depends=["model/_kernels.h"], extra
                                         ("simulator._dynamics_kernels", "simulator/_dynamics_kernels.c"),
                                         ("simulator.crazyflie._drive_kernel", "simulator/crazyflie/_drive_kernel.c"),
                                         ("groundstation._compensation_kernel",
-                                         "groundstation/_compensation_kernel.c"))])
+                                         "groundstation/_compensation_kernel.c"),
+                                        ("groundstation._controller_kernel", "groundstation/_controller_kernel.c"))])

@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.controller_kernel import report_constants, se3_update
 from groundstation.trajectory import FlatOutput
 from model.attitude_law import attitude_moment
 from model.config import Params, resolve
@@ -157,11 +158,27 @@ class SE3Controller:
         self._max_moment_nm = tuple(np.asarray(vehicle.max_moment_nm, dtype=float).tolist())
         self._full = self.variant == "full"
         self._position_gains = (*gains.kp, *gains.kd)
+        self._report_constants = None  # the compiled report law's constants (None: the Python runs)
+        if se3_update is not None and not self._full:
+            self._report_constants = report_constants(self.mass_kg, self._position_gains, gains.k_r, gains.k_w,
+                                                      self._inertia_diag, self._max_thrust_n, self._max_moment_nm,
+                                                      _DEGENERATE_NORM)
 
     def update(self, state: ControllerState, ref: FlatOutput, t_s: float = 0.0) -> ControlOutput:  # noqa: ARG002
         # t_s is unused (the law is time-invariant); it is the course's update(t, ...) argument, which the
         # user-code adapter (groundstation.usercode) takes through this same call
-        """One control step: thrust, moment and desired attitude for the current state and reference."""
+        """One control step: thrust, moment and desired attitude for the current state and reference.
+        The "report" law is compiled (controller_kernel), with _update_python as its twin."""
+        if self._report_constants is not None:
+            out = se3_update(state.position_enu_m, state.velocity_enu_mps, state.attitude_wxyz, state.rate_flu_radps,
+                             ref.position_m, ref.velocity_mps, ref.acceleration_mps2, ref.yaw_rad,
+                             self._report_constants, ControlOutput)
+            if out is not None:
+                return out
+        return self._update_python(state, ref)  # not built, the "full" variant, or a step the kernel leaves
+
+    def _update_python(self, state: ControllerState, ref: FlatOutput) -> ControlOutput:
+        """The law in Python: the compiled report law's twin, and the "full" variant."""
         m = self.mass_kg
         kpx, kpy, kpz, kdx, kdy, kdz = self._position_gains
         px, py, pz = as_floats(state.position_enu_m)

@@ -21,7 +21,7 @@ import numpy as np
 from estimator import eskf_kernels
 from estimator.eskf import ErrorStateKF
 from estimator.sensor_spec import SensorSpec, load_sensor_spec, subsampled
-from groundstation import compensation_kernel
+from groundstation import compensation_kernel, controller_kernel
 from groundstation.clocks import DEFAULT_RATE_HZ, LockstepClock, RealtimeClock
 from groundstation.compensation import LatencyCompensator
 from groundstation.controller import SE3Controller, load_gains
@@ -127,11 +127,12 @@ def run_session(opts: SessionOptions) -> SessionResult:
             # a log block's IMU is every n-th sample of the vehicle's: each carries that sample's noise
             estimator = ErrorStateKF(subsampled(opts.sensor_spec, vehicle.imu.rate_hz, imu_rate_hz), imu_rate_hz)
             missing = [name for name, compiled in (("the estimator's propagation", eskf_kernels.COMPILED),
-                                                   ("the latency compensator's steps", compensation_kernel.COMPILED))
+                                                   ("the latency compensator's steps", compensation_kernel.COMPILED),
+                                                   ("the controller's report law", controller_kernel.COMPILED))
                        if not compiled]
             if missing:
                 log.warning("ground station: %s not built (no C compiler at pip install?): the Python twins run, "
-                            "same results, slower (README: Lockstep speed)", " and ".join(missing))
+                            "same results, slower (README: Lockstep speed)", ", ".join(missing))
             gains = load_gains(opts.gains)
             controller = SE3Controller(vehicle, gains, variant=opts.controller_variant)
             if opts.user_code is not None:  # the user's SE3Control; ours stays as its failsafe
