@@ -1,11 +1,13 @@
 """The compiled parts of cfstack (everything else is in pyproject.toml): estimator/_eskf_kernels.c (the
 estimator's per-sample propagation and Kalman steps), simulator/_dynamics_kernels.c (the rigid body's RK4 step,
-the rotors' lag) and simulator/crazyflie/_drive_kernel.c (the faithful firmware's drive chain).
+the rotors' lag), simulator/crazyflie/_drive_kernel.c (the faithful firmware's drive chain),
+groundstation/_compensation_kernel.c (the latency compensator's model steps) and
+groundstation/_controller_kernel.c (the SE(3) controller's report law).
 
-Optional: where they cannot be built (no C compiler), pip installs cfstack without them and the estimator
-and the simulator run their Python twins (estimator/eskf_kernels.py, simulator/dynamics_kernels.py), which
-give the same results, slower.
-model/_kernels.h holds what both read from Python (included, so listed in depends: rebuilt and shipped).
+Optional: where they cannot be built (no C compiler), pip installs cfstack without them and each runs its
+Python twin (estimator/eskf_kernels.py, simulator/dynamics_kernels.py, the firmware's, the compensator's and the
+controller's own Python), which gives the same results, slower.
+model/_kernels.h holds what they all read from Python (included, so listed in depends: rebuilt and shipped).
 -ffp-contract=off: no fused multiply-add, so the C gives the Python twins' bits on every CPU.
 """
 

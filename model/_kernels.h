@@ -1,5 +1,6 @@
 /* What the compiled kernels (estimator/_eskf_kernels.c, simulator/_dynamics_kernels.c,
-   simulator/crazyflie/_drive_kernel.c) share: reading Python numbers into C doubles, building tuples and lists
+   simulator/crazyflie/_drive_kernel.c, groundstation/_compensation_kernel.c, groundstation/_controller_kernel.c)
+   share: reading Python numbers into C doubles, building tuples and lists
    of floats, checking a call's argument count. Included by each; setup.py lists it in every extension's
    depends. */
 
