@@ -26,17 +26,6 @@ tests/estimator/test_eskf_kernels.py checks the bits against the twin. */
 #define N_TRANSITION 48
 #define F_SIZE (15 * 15)
 
-/* model.frames.quat_to_rows */
-static void quat_to_rows(const double q[4], double r[9]) {
-    double w = q[0], x = q[1], y = q[2], z = q[3];
-    double xx = x * x, yy = y * y, zz = z * z;
-    double xy = x * y, xz = x * z, yz = y * z;
-    double wx = w * x, wy = w * y, wz = w * z;
-    r[0] = 1.0 - 2.0 * (yy + zz); r[1] = 2.0 * (xy - wz); r[2] = 2.0 * (xz + wy);
-    r[3] = 2.0 * (xy + wz); r[4] = 1.0 - 2.0 * (xx + zz); r[5] = 2.0 * (yz - wx);
-    r[6] = 2.0 * (xz - wy); r[7] = 2.0 * (yz + wx); r[8] = 1.0 - 2.0 * (xx + yy);
-}
-
 /* model.frames.rotate */
 static void rotate(const double r[9], double vx, double vy, double vz, double out[3]) {
     out[0] = r[0] * vx + r[1] * vy + r[2] * vz;
@@ -66,18 +55,6 @@ static void quat_multiply(const double a[4], const double b[4], double out[4]) {
     out[1] = aw * bx + ax * bw + ay * bz - az * by;
     out[2] = aw * by - ax * bz + ay * bw + az * bx;
     out[3] = aw * bz + ax * by - ay * bx + az * bw;
-}
-
-/* model.frames.quat_normalize_positive_w; -1 (ValueError set) for the zero quaternion */
-static int quat_normalize_positive_w(double q[4]) {
-    double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    if (n == 0.0) {
-        PyErr_SetString(PyExc_ValueError, "zero quaternion");
-        return -1;
-    }
-    if (q[0] < 0.0) n = -n;
-    q[0] = q[0] / n; q[1] = q[1] / n; q[2] = q[2] / n; q[3] = q[3] / n;
-    return 0;
 }
 
 /* F's 48 entries in eskf_kernels.transition_values' order, from R(q0) row-major, the mean bias-corrected

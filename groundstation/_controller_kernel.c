@@ -9,14 +9,16 @@ gravity m/s^2, the degenerate norm) and the ControlOutput class.
 It gives out the ControlOutput the Python gives, or None where it would not do alike with the Python: an
 attitude to normalise of zero norm, a cos or sin of an infinite yaw, a desired attitude Shepperd's method
 cannot take (the square root of a negative, a division by zero), or vectors that are not floats of the right
-count (ints, say, whose arithmetic Python keeps exact). The caller then runs the Python, which gives what Python gives, errors included.
+count (ints, say, whose arithmetic Python keeps exact). The caller then runs the Python, which gives what
+Python gives, errors included.
 
 Same bits as the Python: every expression below is the Python's, in the same order, one IEEE double operation
 at a time (setup.py builds this file with -ffp-contract=off, so no multiply-add is fused); sqrt, sin and cos
 are the C library's, the ones Python's math module calls. tests/groundstation/test_controller_kernel.py checks
 the bits against the Python. */
 
-#include "../model/_kernels.h" /* includes Python.h; read_floats, float_tuple, check_nargs */
+/* includes Python.h and math.h; read_floats, float_tuple, check_nargs, quat_to_rows, quat_normalize_positive_w */
+#include "../model/_kernels.h"
 #include <math.h>
 #include <string.h>
 
@@ -66,37 +68,26 @@ static double clip(double value, double low, double high) {
 /* model.frames.rows_to_quat (Shepperd's method, then quat_normalize_positive_w); -1 where the Python raises */
 static int rows_to_quat(double r00, double r01, double r02, double r10, double r11, double r12, double r20,
                         double r21, double r22, double *q) {
-    double trace = r00 + r11 + r22, radicand, s;
-    if (trace >= r00 && trace >= r11 && trace >= r22) {
-        radicand = 1.0 + trace;
-        if (radicand < 0.0) return -1; /* math.sqrt: ValueError */
-        s = 2.0 * sqrt(radicand);
-        if (s == 0.0) return -1; /* ZeroDivisionError */
-        q[0] = 0.25 * s, q[1] = (r21 - r12) / s, q[2] = (r02 - r20) / s, q[3] = (r10 - r01) / s;
-    } else if (r00 >= r11 && r00 >= r22) {
-        radicand = 1.0 + r00 - r11 - r22;
-        if (radicand < 0.0) return -1;
-        s = 2.0 * sqrt(radicand);
-        if (s == 0.0) return -1;
-        q[0] = (r21 - r12) / s, q[1] = 0.25 * s, q[2] = (r01 + r10) / s, q[3] = (r02 + r20) / s;
-    } else if (r11 >= r22) {
-        radicand = 1.0 + r11 - r00 - r22;
-        if (radicand < 0.0) return -1;
-        s = 2.0 * sqrt(radicand);
-        if (s == 0.0) return -1;
-        q[0] = (r02 - r20) / s, q[1] = (r01 + r10) / s, q[2] = 0.25 * s, q[3] = (r12 + r21) / s;
-    } else {
-        radicand = 1.0 + r22 - r00 - r11;
-        if (radicand < 0.0) return -1;
-        s = 2.0 * sqrt(radicand);
-        if (s == 0.0) return -1;
-        q[0] = (r10 - r01) / s, q[1] = (r02 + r20) / s, q[2] = (r12 + r21) / s, q[3] = 0.25 * s;
+    double trace = r00 + r11 + r22, radicand;
+    int largest; /* 0: the trace, 1-3: r00, r11, r22 (the branch keeps the divisor away from zero) */
+    if (trace >= r00 && trace >= r11 && trace >= r22)
+        largest = 0, radicand = 1.0 + trace;
+    else if (r00 >= r11 && r00 >= r22)
+        largest = 1, radicand = 1.0 + r00 - r11 - r22;
+    else if (r11 >= r22)
+        largest = 2, radicand = 1.0 + r11 - r00 - r22;
+    else
+        largest = 3, radicand = 1.0 + r22 - r00 - r11;
+    if (radicand < 0.0) return -1; /* math.sqrt: ValueError */
+    double s = 2.0 * sqrt(radicand); /* 4 w, 4 x, 4 y or 4 z */
+    if (s == 0.0) return -1; /* ZeroDivisionError */
+    switch (largest) {
+    case 0: q[0] = 0.25 * s, q[1] = (r21 - r12) / s, q[2] = (r02 - r20) / s, q[3] = (r10 - r01) / s; break;
+    case 1: q[0] = (r21 - r12) / s, q[1] = 0.25 * s, q[2] = (r01 + r10) / s, q[3] = (r02 + r20) / s; break;
+    case 2: q[0] = (r02 - r20) / s, q[1] = (r01 + r10) / s, q[2] = 0.25 * s, q[3] = (r12 + r21) / s; break;
+    default: q[0] = (r10 - r01) / s, q[1] = (r02 + r20) / s, q[2] = (r12 + r21) / s, q[3] = 0.25 * s;
     }
-    double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    if (n == 0.0) return -1; /* ValueError: zero quaternion */
-    if (q[0] < 0.0) n = -n;
-    for (int i = 0; i < 4; i++) q[i] = q[i] / n;
-    return 0;
+    return quat_normalize_positive_w(q); /* -1 with ValueError for the zero quaternion */
 }
 
 /* The outputs, in ControlOutput's field order: thrust, moment, attitude_des, rate_des, thrust_saturated,
@@ -116,15 +107,12 @@ static int report_law(const double *p, const double *v, const double *q_in, cons
     double fy = m * (ra[1] - k[KDY] * evy - k[KPY] * epy);
     double fz = m * (ra[2] - k[KDZ] * evz - k[KPZ] * epz + k[GRAVITY]);
 
-    /* quat_normalize, then quat_to_rows */
-    double qn = sqrt(q_in[0] * q_in[0] + q_in[1] * q_in[1] + q_in[2] * q_in[2] + q_in[3] * q_in[3]);
+    /* model.frames.quat_normalize (the sign kept), then quat_to_rows */
+    double qn = sqrt(q_in[0] * q_in[0] + q_in[1] * q_in[1] + q_in[2] * q_in[2] + q_in[3] * q_in[3]), r[9];
     if (qn == 0.0) return -1; /* ZeroDivisionError */
-    double qw = q_in[0] / qn, qx = q_in[1] / qn, qy = q_in[2] / qn, qz = q_in[3] / qn;
-    double xx = qx * qx, yy = qy * qy, zz = qz * qz, xy = qx * qy, xz = qx * qz, yz = qy * qz;
-    double wx_ = qw * qx, wy_ = qw * qy, wz_ = qw * qz;
-    double r00 = 1.0 - 2.0 * (yy + zz), r01 = 2.0 * (xy - wz_), r02 = 2.0 * (xz + wy_);
-    double r10 = 2.0 * (xy + wz_), r11 = 1.0 - 2.0 * (xx + zz), r12 = 2.0 * (yz - wx_);
-    double r20 = 2.0 * (xz - wy_), r21 = 2.0 * (yz + wx_), r22 = 1.0 - 2.0 * (xx + yy);
+    double q_unit[4] = {q_in[0] / qn, q_in[1] / qn, q_in[2] / qn, q_in[3] / qn};
+    quat_to_rows(q_unit, r);
+    double r00 = r[0], r01 = r[1], r02 = r[2], r10 = r[3], r11 = r[4], r12 = r[5], r20 = r[6], r21 = r[7], r22 = r[8];
     double thrust = r02 * fx + r12 * fy + r22 * fz;
 
     double f_norm = sqrt(fx * fx + fy * fy + fz * fz), b3x, b3y, b3z;

@@ -1,14 +1,15 @@
 /* What the compiled kernels (estimator/_eskf_kernels.c, simulator/_dynamics_kernels.c,
    simulator/crazyflie/_drive_kernel.c, groundstation/_compensation_kernel.c, groundstation/_controller_kernel.c)
-   share: reading Python numbers into C doubles, building tuples and lists
-   of floats, checking a call's argument count. Included by each; setup.py lists it in every extension's
-   depends. */
+   share: reading Python numbers into C doubles, building tuples and lists of floats, checking a call's argument
+   count, and model.frames' quat_to_rows and quat_normalize_positive_w. Included by each; setup.py lists it in
+   every extension's depends. */
 
 #ifndef CFSTACK_KERNELS_H
 #define CFSTACK_KERNELS_H
 
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <math.h>
 
 /* n numbers of a sequence into out; -1 with ValueError (wrong length) or TypeError (not a number) set */
 static inline int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *name) {
@@ -72,6 +73,29 @@ static inline int check_nargs(const char *kernel, Py_ssize_t nargs, Py_ssize_t e
     if (nargs == expected) return 0;
     PyErr_Format(PyExc_TypeError, "%s takes %zd arguments (%zd given)", kernel, expected, nargs);
     return -1;
+}
+
+/* model.frames.quat_to_rows */
+static inline void quat_to_rows(const double q[4], double r[9]) {
+    double w = q[0], x = q[1], y = q[2], z = q[3];
+    double xx = x * x, yy = y * y, zz = z * z;
+    double xy = x * y, xz = x * z, yz = y * z;
+    double wx = w * x, wy = w * y, wz = w * z;
+    r[0] = 1.0 - 2.0 * (yy + zz); r[1] = 2.0 * (xy - wz); r[2] = 2.0 * (xz + wy);
+    r[3] = 2.0 * (xy + wz); r[4] = 1.0 - 2.0 * (xx + zz); r[5] = 2.0 * (yz - wx);
+    r[6] = 2.0 * (xz - wy); r[7] = 2.0 * (yz + wx); r[8] = 1.0 - 2.0 * (xx + yy);
+}
+
+/* model.frames.quat_normalize_positive_w; -1 (ValueError set) for the zero quaternion */
+static inline int quat_normalize_positive_w(double q[4]) {
+    double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (n == 0.0) {
+        PyErr_SetString(PyExc_ValueError, "zero quaternion");
+        return -1;
+    }
+    if (q[0] < 0.0) n = -n;
+    q[0] = q[0] / n; q[1] = q[1] / n; q[2] = q[2] / n; q[3] = q[3] / n;
+    return 0;
 }
 
 #endif
