@@ -70,14 +70,8 @@ def test_no_tick_no_critical_path():
     assert LockstepClock(PERIOD_S, NoFrames(), LateTicks(0)).critical_path_summary() == {}
 
 
-class AlternateTicks:
+class AlternateTicks(LateTicks):
     """The clock key: every other tick record is already in when asked for; the others arrive LATE_S after."""
-
-    rx = "test/clock"
-
-    def __init__(self, ticks: int):
-        self.records = [ClockTick(k, round(k * PERIOD_S * 1e9), 0, 0, 0).pack() for k in range(ticks)]
-        self.acks = []
 
     def receive(self, timeout_s=0.0):
         if not self.records or (len(self.records) % 2 == 1 and timeout_s == 0.0):
@@ -85,10 +79,6 @@ class AlternateTicks:
         if timeout_s > 0.0:
             time.sleep(LATE_S)
         return [self.records.pop(0)]
-
-    def send(self, data):
-        self.acks.append(unpack_ack(data))
-        return True
 
 
 def test_the_summary_says_which_records_were_in_how_long_the_loop_waited_and_its_cpu_per_tick():
