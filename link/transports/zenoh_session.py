@@ -14,6 +14,7 @@ explicitly overrides the file's value. zenoh's own transport settings are kept: 
 transport (transport/unicast/lowlatency, which needs QoS off) was measured with `cfstack link-bench` at
 ~20-30 us lower round trips on loopback, but it sends every sample in its own write, so a burst of
 frames went ~3-5x slower (zenoh link 25-45 k vs 50-60 k frames/s), and it would drop QoS priorities.
+zenoh's own threads run as link.transports.zenoh_threads says (in the background in a lockstep process).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from pathlib import Path
 
 import zenoh
 
+from link.transports import zenoh_threads
 from model.errors import UserError
 
 DEFAULT_MODE = "peer"
@@ -190,13 +192,37 @@ def acquire_session(settings: ZenohSettings) -> zenoh.Session:
         shared = _SESSIONS.get(settings)
         if shared is None:
             try:
-                session = zenoh.open(settings.to_config())
+                session = _open(settings.to_config())
             except zenoh.ZError as err:
                 raise UserError(f"cannot open zenoh session ({settings.describe()}): "
                                 f"{zenoh_error_text(err)}") from None
             shared = _SESSIONS[settings] = _SharedSession(session, 0)
         shared.users += 1
         return shared.session
+
+
+def _open(config: zenoh.Config) -> zenoh.Session:
+    """zenoh.open; where zenoh's threads go in the background (link.transports.zenoh_threads), called from a
+    short-lived thread of ours put there first: a thread inherits its creator's policy and niceness, zenoh
+    starts its runtimes' threads at the first open, and the threads it starts later are started by those.
+    (The caller's own thread could not take its niceness back after: only a privileged process may lower it.)"""
+    if not zenoh_threads.in_background():
+        return zenoh.open(config)
+    result: list = []
+
+    def open_in_background() -> None:
+        try:
+            zenoh_threads.to_background(threading.get_native_id())
+            result.append(zenoh.open(config))
+        except BaseException as err:  # noqa: BLE001 - handed to the caller's thread, which raises it
+            result.append(err)
+
+    opener = threading.Thread(target=open_in_background, name="zenoh-open", daemon=True)
+    opener.start()
+    opener.join()
+    if isinstance(result[0], BaseException):
+        raise result[0]
+    return result[0]
 
 
 def release_session(settings: ZenohSettings) -> None:
