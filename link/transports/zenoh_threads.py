@@ -17,9 +17,12 @@ It is never starved: four flights at once on two cores finished sooner, not late
 
 from __future__ import annotations
 
+import logging
 import os
 
 from model.errors import UserError
+
+log = logging.getLogger("cfstack.link")
 
 ENV = "CFSTACK_ZENOH_THREADS"
 CHOICES = ("background", "normal")
@@ -54,7 +57,12 @@ def in_background() -> bool:
 
 def to_background(tid: int) -> None:
     """SCHED_BATCH and BACKGROUND_NICE for thread tid (Linux: both are a thread's own, and its new threads
-    inherit them); a policy or a niceness the user gave the process (chrt, nice) is kept if already lower."""
-    if os.sched_getscheduler(tid) == os.SCHED_OTHER:
-        os.sched_setscheduler(tid, os.SCHED_BATCH, os.sched_param(0))
-    os.setpriority(os.PRIO_PROCESS, tid, max(BACKGROUND_NICE, os.getpriority(os.PRIO_PROCESS, tid)))
+    inherit them); a policy or a niceness the user gave the process (chrt, nice) is kept if already lower.
+    Where the system refuses (a sandbox may), one warning, and the thread stays as it is: only speed is lost."""
+    try:
+        if os.sched_getscheduler(tid) == os.SCHED_OTHER:
+            os.sched_setscheduler(tid, os.SCHED_BATCH, os.sched_param(0))
+        os.setpriority(os.PRIO_PROCESS, tid, max(BACKGROUND_NICE, os.getpriority(os.PRIO_PROCESS, tid)))
+    except OSError as err:
+        log.warning("could not put zenoh's threads in the background (%s): they run as the process does; "
+                    "%s=normal skips the attempt", err.strerror or err, ENV)

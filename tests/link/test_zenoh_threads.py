@@ -10,12 +10,13 @@ import json
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from link.transports.zenoh_threads import BACKGROUND_NICE
+from link.transports.zenoh_threads import BACKGROUND_NICE, to_background
 from link.transports.zenoh_threads import ENV as ZENOH_THREADS_ENV
 
 REPO = Path(__file__).resolve().parents[2]
@@ -108,6 +109,21 @@ def test_an_unknown_setting_is_one_line_naming_the_variable(tmp_path):
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert lines == [f"cfstack fly: {ZENOH_THREADS_ENV}='fast': must be one of background, normal"], done.stderr
+
+
+def test_a_refused_policy_is_one_warning_and_the_thread_stays_as_it_was(monkeypatch, caplog):
+    def refuse(*_):
+        raise PermissionError(1, "Operation not permitted")
+
+    tid = threading.get_native_id()
+    before = os.sched_getscheduler(tid), os.getpriority(os.PRIO_PROCESS, tid)
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(os, "setpriority", refuse)
+    to_background(tid)
+    assert (os.sched_getscheduler(tid), os.getpriority(os.PRIO_PROCESS, tid)) == before
+    assert [r.getMessage() for r in caplog.records] == [
+        "could not put zenoh's threads in the background (Operation not permitted): they run as the process does; "
+        f"{ZENOH_THREADS_ENV}=normal skips the attempt"]
 
 
 def _threads_of(pid: int) -> list[dict]:
