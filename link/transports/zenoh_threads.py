@@ -9,7 +9,7 @@ In the background (Linux) means SCHED_BATCH, so a zenoh thread that wakes for a 
 the thread running on its core, and niceness BACKGROUND_NICE, so it gives way to our Python threads when they
 contend. It then runs on an idle core, or once the Python thread blocks, which in a lockstep flight each
 process does every tick. Why: per thread, at 500 Hz, the ground station's loop thread was preempted 1.4 times
-per tick, and each process's zenoh threads woke 6-7 times per tick. Why only in lockstep: there a run's speed is
+per tick, and each process's zenoh threads woke 5-6 times per tick. Why only in lockstep: there a run's speed is
 its throughput, and each tick waits on the other process anyway; in realtime a frame's wall-clock latency is
 what counts, and it was worse in two of seven realtime flights with the background (README "Lockstep speed").
 It is never starved: four flights at once on two cores finished sooner, not later.
