@@ -1,8 +1,8 @@
 """zenoh's own threads run in the background (link.transports.zenoh_threads: SCHED_BATCH, niceness 19) where a
 process asks for it (lockstep) or CFSTACK_ZENOH_THREADS says so, and ours never do. Each case is a fresh process
 (zenoh starts its threads once per process): two sessions, one listening and one connecting, exchange a frame,
-so zenoh has started its link's transmit and receive threads too; then the process reads every thread's policy
-and niceness off /proc. Then which way `cfstack fly` goes, in each clock."""
+so zenoh has started its link's transmit and receive threads too; then the test reads every thread's policy and
+niceness off /proc (_threads_of). Then which way `cfstack fly` goes, in each clock, read the same way."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_BATCH") or not Path("/pro
                                 reason="SCHED_BATCH and /proc are Linux's")
 
 PROBE = r"""
-import json, os, sys, threading, time
+import json, sys, time
 from link.transports import open_transport
 from link.transports.zenoh_threads import use_background_threads
 port = int(sys.argv[1])
@@ -40,34 +40,34 @@ deadline = time.monotonic() + 10.0
 frames = []
 while not frames and time.monotonic() < deadline:
     frames = listener.receive(0.1)
-ours = {t.native_id for t in threading.enumerate()}
-threads = []
-for tid in map(int, os.listdir("/proc/self/task")):
-    name = open(f"/proc/self/task/{tid}/comm").read().strip()
-    threads.append({"name": name, "python": tid in ours, "policy": os.sched_getscheduler(tid),
-                    "nice": os.getpriority(os.PRIO_PROCESS, tid)})
-print(json.dumps({"frames": [f.decode() for f in frames], "threads": threads}))
+print(json.dumps([f.decode() for f in frames]), flush=True)
+sys.stdin.read()  # the test reads our threads meanwhile; it closes our stdin when done
 """
 
 
 def run_probe(free_tcp_port, asked: str = "background", env_value: str | None = None,
-              prefix: tuple[str, ...] = ()) -> dict:
-    """asked: what the process asks for (use_background_threads), or "default" (it does not ask)."""
+              prefix: tuple[str, ...] = ()) -> list[dict]:
+    """The probe's threads once its link is up. asked: what the process asks for (use_background_threads), or
+    "default" (it does not ask)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
     env.pop(ZENOH_THREADS_ENV, None)
     if env_value is not None:
         env[ZENOH_THREADS_ENV] = env_value
-    done = subprocess.run([*prefix, sys.executable, "-c", PROBE, str(free_tcp_port()), asked], capture_output=True,
-                          text=True, env=env, timeout=60)
-    assert done.returncode == 0, done.stderr
-    result = json.loads(done.stdout)
-    assert result["frames"] == ["frame"]  # the link was up: its transmit and receive threads exist
-    return result
+    probe = subprocess.Popen([*prefix, sys.executable, "-c", PROBE, str(free_tcp_port()), asked],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        frames = probe.stdout.readline()
+        threads = _threads_of(probe.pid)
+    finally:
+        _, err = probe.communicate(timeout=60)  # closes its stdin: it exits
+    assert probe.returncode == 0, err
+    assert json.loads(frames) == ["frame"]  # the link was up: its transmit and receive threads exist
+    return threads
 
 
-def zenoh_threads(result: dict) -> list[dict]:
-    found = [t for t in result["threads"] if not t["python"] and t["name"].split("-")[0] in ZENOH_RUNTIMES]
-    assert {t["name"].split("-")[0] for t in found} >= {"tx", "rx", "net"}, result["threads"]
+def zenoh_threads(threads: list[dict]) -> list[dict]:
+    found = [t for t in threads if not t["python"] and t["name"].split("-")[0] in ZENOH_RUNTIMES]
+    assert {t["name"].split("-")[0] for t in found} >= {"tx", "rx", "net"}, threads
     return found
 
 
@@ -79,9 +79,9 @@ def background(thread: dict) -> bool:
 
 
 def test_asked_for_zenohs_threads_run_in_the_background_and_ours_do_not(free_tcp_port):
-    result = run_probe(free_tcp_port)
-    assert all(background(t) for t in zenoh_threads(result))
-    python = [t for t in result["threads"] if t["python"]]
+    threads = run_probe(free_tcp_port)
+    assert all(background(t) for t in zenoh_threads(threads))
+    python = [t for t in threads if t["python"]]
     assert python and not any(background(t) for t in python)
 
 
@@ -92,14 +92,14 @@ def test_asked_for_zenohs_threads_run_in_the_background_and_ours_do_not(free_tcp
     ("default", "background", True),
 ])
 def test_the_environment_overrides_what_the_process_asks(free_tcp_port, asked, env_value, expected):
-    result = run_probe(free_tcp_port, asked, env_value)
-    assert [background(t) for t in zenoh_threads(result)] == [expected] * len(zenoh_threads(result))
+    zenoh = zenoh_threads(run_probe(free_tcp_port, asked, env_value))
+    assert [background(t) for t in zenoh] == [expected] * len(zenoh)
 
 
 def test_a_niced_process_keeps_its_niceness_and_zenoh_still_goes_below_it(free_tcp_port):
-    result = run_probe(free_tcp_port, prefix=("nice", "-n", "5"))
-    assert all(t["nice"] == 5 for t in result["threads"] if t["python"])
-    assert all(t["nice"] == BACKGROUND_NICE for t in zenoh_threads(result))
+    threads = run_probe(free_tcp_port, prefix=("nice", "-n", "5"))
+    assert all(t["nice"] == 5 for t in threads if t["python"])
+    assert all(t["nice"] == BACKGROUND_NICE for t in zenoh_threads(threads))
 
 
 def test_an_unknown_setting_is_one_line_naming_the_variable(tmp_path):
@@ -127,7 +127,7 @@ def test_a_refused_policy_is_one_warning_and_the_thread_stays_as_it_was(monkeypa
 
 
 def _threads_of(pid: int) -> list[dict]:
-    """pid's threads as run_probe reports them; a Python thread is named after the program, zenoh's are not."""
+    """pid's threads: name, policy, niceness; a Python thread is named after the program, zenoh's are not."""
     threads = []
     for tid in map(int, os.listdir(f"/proc/{pid}/task")):
         try:
@@ -165,6 +165,6 @@ def test_fly_puts_zenohs_threads_in_the_background_in_lockstep_only(tmp_path, cl
         fly.kill()
         fly.wait(timeout=30)
     for threads in (ground, emulator):
-        zenoh = zenoh_threads({"threads": [t for t in threads if not t["python"]]})
+        zenoh = zenoh_threads(threads)
         assert [background(t) for t in zenoh] == [expected] * len(zenoh)
         assert not any(background(t) for t in threads if t["python"])
