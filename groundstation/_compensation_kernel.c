@@ -15,7 +15,7 @@ what Python gives, errors included.
 
 Same bits as the Python: every expression below is the Python's, in the same order, one IEEE double
 operation at a time (setup.py builds this file with -ffp-contract=off, so no multiply-add is fused); sqrt,
-sin and cos are the C library's, the ones Python's math module calls. tests/groundstation/test_compensation.py
+sin and cos are the C library's, the ones Python's math module calls. tests/groundstation/test_compensation_kernel.py
 checks the bits against the Python. */
 
 #include "../model/_kernels.h" /* includes Python.h; read_floats, float_tuple, check_nargs */

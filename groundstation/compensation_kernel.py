@@ -8,7 +8,7 @@ Gives out: `predict_steps`, the compiled kernel (groundstation/_compensation_ker
 LatencyCompensator._steps_python (groundstation/compensation.py): the state at t_act as 13 floats, or
 None for a prediction it leaves to the Python.
 
-They give the same bits (tests/groundstation/test_compensation.py). Why compiled: the steps ran on the ground
+They give the same bits (tests/groundstation/test_compensation_kernel.py). Why compiled: the steps ran on the ground
 station's critical path every tick, 9.2 us per call in Python (a replay of a moments circle's calls).
 """
 
