@@ -1,8 +1,8 @@
 """The compiled parts of cfstack (everything else is in pyproject.toml): estimator/_eskf_kernels.c (the
 estimator's per-sample propagation and Kalman steps), simulator/_dynamics_kernels.c (the rigid body's RK4 step,
 the rotors' lag), simulator/crazyflie/_drive_kernel.c (the faithful firmware's drive chain),
-groundstation/_compensation_kernel.c (the latency compensator's model steps) and
-groundstation/_controller_kernel.c (the SE(3) controller's report law).
+simulator/crazyflie/_pid_kernel.c (its attitude and rate PIDs), groundstation/_compensation_kernel.c (the latency
+compensator's model steps) and groundstation/_controller_kernel.c (the SE(3) controller's report law).
 
 Optional: where they cannot be built (no C compiler), pip installs cfstack without them and each runs its
 Python twin (estimator/eskf_kernels.py, simulator/dynamics_kernels.py, the firmware's, the compensator's and the
@@ -18,6 +18,7 @@ setup(ext_modules=[Extension(name, [source], depends=["model/_kernels.h"], extra
                    for name, source in (("estimator._eskf_kernels", "estimator/_eskf_kernels.c"),
                                         ("simulator._dynamics_kernels", "simulator/_dynamics_kernels.c"),
                                         ("simulator.crazyflie._drive_kernel", "simulator/crazyflie/_drive_kernel.c"),
+                                        ("simulator.crazyflie._pid_kernel", "simulator/crazyflie/_pid_kernel.c"),
                                         ("groundstation._compensation_kernel",
                                          "groundstation/_compensation_kernel.c"),
                                         ("groundstation._controller_kernel", "groundstation/_controller_kernel.c"))])

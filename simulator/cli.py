@@ -201,10 +201,11 @@ def emulator_command(argv: list[str]) -> int:
                  radio_link, config.seed,
                  config.prefix, config.vehicles, emulator.lockstep.lookahead_horizon_s() * 1e3)
         from simulator import dynamics_kernels  # loaded already (the dynamics): asked here for the warning only
-        from simulator.crazyflie import drive_kernel
+        from simulator.crazyflie import drive_kernel, pid_kernel
 
         missing = [name for name, compiled in (("the RK4 step and rotor lag", dynamics_kernels.COMPILED),
-                                               ("the faithful firmware's drive chain", drive_kernel.COMPILED))
+                                               ("the faithful firmware's drive chain", drive_kernel.COMPILED),
+                                               ("the faithful firmware's attitude and rate PIDs", pid_kernel.COMPILED))
                    if not compiled]
         if missing:
             log.warning("emulator: compiled kernels not built (no C compiler at pip install?): %s; their Python "

@@ -5,7 +5,7 @@ Takes in: the gains (simulator/params/crazyflie.toml [pid_attitude], [pid_rate])
 up), then the actual and desired body rates (deg/s, the same legacy signs).
 Gives out: the desired rates (deg/s) from the attitude PIDs, and the roll, pitch, yaw actuator outputs
 (int16 "PWM delta", saturated to +-32767 and truncated toward zero as saturateSignedInt16 does) from the
-rate PIDs.
+rate PIDs. Each three PIDs run compiled (pid_kernel) where the kernel was built, with the same bits.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from simulator.crazyflie.pid import Pid
+from simulator.crazyflie.pid_kernel import update3
 
 INT16_MAX = 32767
 
@@ -33,11 +34,29 @@ class AttitudeController:
         self.rate = _pids(rate_gains, dt_s)  # roll, pitch, yaw: deg/s -> int16
 
     def correct_attitude(self, actual_deg: Sequence[float], desired_deg: Sequence[float]) -> tuple[float, ...]:
+        """The desired rates (deg/s): compiled (pid_kernel) where it was built, else correct_attitude_python."""
+        if update3 is not None:
+            rates = update3(self.attitude, desired_deg, actual_deg, True, False)
+            if rates is not None:
+                return rates
+        return self.correct_attitude_python(actual_deg, desired_deg)
+
+    def correct_rate(self, actual_dps: Sequence[float], desired_dps: Sequence[float]) -> tuple[int, int, int]:
+        """The roll, pitch, yaw outputs (int16): compiled (pid_kernel) where it was built, else correct_rate_python."""
+        if update3 is not None:
+            outputs = update3(self.rate, desired_dps, actual_dps, False, True)
+            if outputs is not None:
+                return outputs
+        return self.correct_rate_python(actual_dps, desired_dps)
+
+    def correct_attitude_python(self, actual_deg: Sequence[float], desired_deg: Sequence[float]) -> tuple[float, ...]:
+        """correct_attitude in Python (the compiled kernel's twin, and what runs where it was not built)."""
         roll, pitch, yaw = self.attitude
         return (roll.update(desired_deg[0], actual_deg[0]), pitch.update(desired_deg[1], actual_deg[1]),
                 yaw.update(desired_deg[2], actual_deg[2], is_yaw_angle=True))
 
-    def correct_rate(self, actual_dps: Sequence[float], desired_dps: Sequence[float]) -> tuple[int, int, int]:
+    def correct_rate_python(self, actual_dps: Sequence[float], desired_dps: Sequence[float]) -> tuple[int, int, int]:
+        """correct_rate in Python (the compiled kernel's twin, and what runs where it was not built)."""
         roll, pitch, yaw = self.rate
         return (saturate_int16(roll.update(desired_dps[0], actual_dps[0])),
                 saturate_int16(pitch.update(desired_dps[1], actual_dps[1])),

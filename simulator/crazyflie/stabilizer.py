@@ -244,6 +244,8 @@ class CrazyflieFirmware(Firmware):
         self.high_level_enabled = True  # param commander.enHighLevel
         self.low_level_active = False  # a low-level setpoint came since the last notify-stop (its priority)
         self._sp_pid: Setpoint | None = None
+        self._attitude_sp_key: tuple | None = None  # (attitude, thrust N) that _attitude_sp was built from
+        self._attitude_sp: Setpoint | None = None
         self.crtp_ignored = 0  # CRTP commands the emulated firmware counted and ignored
 
     # --- sensors and estimator ---------------------------------------------------------------------
@@ -611,8 +613,14 @@ class CrazyflieFirmware(Firmware):
         return self._drive(self._through_pid(self._level_setpoint(0.0)))  # armed, idle: thrust 0
 
     def _attitude_setpoint(self) -> Setpoint:
-        return Setpoint(ATTITUDE_MODES, _legacy_rpy_deg(self._sp_attitude),
-                        thrust_pwm=self._thrust_pwm(self._sp_thrust_n))
+        """The held attitude setpoint in the controller's terms, built once per setpoint taken and reused by
+        the 500 Hz cycles until the next one (it arrives at 100 Hz): the same values, ~4 us less per cycle."""
+        key = (self._sp_attitude, self._sp_thrust_n)
+        if key != self._attitude_sp_key:
+            self._attitude_sp_key = key
+            self._attitude_sp = Setpoint(ATTITUDE_MODES, _legacy_rpy_deg(self._sp_attitude),
+                                         thrust_pwm=self._thrust_pwm(self._sp_thrust_n))
+        return self._attitude_sp
 
     def _level_setpoint(self, thrust_n: float) -> Setpoint:
         return Setpoint(LEVEL_MODES, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), self._thrust_pwm(thrust_n))
