@@ -170,10 +170,16 @@ def _fly(steps: int) -> list[bytes]:
 
 @needs_compiled
 def test_a_flight_on_the_compiled_pids_is_the_flight_on_the_python(monkeypatch):
-    calls = []
-    monkeypatch.setattr(attitude_controller, "update3", lambda *args: calls.append(1) or pid_kernel.update3(*args))
+    answered = []  # per call: did the kernel answer (not hand back to the Python)?
+
+    def counted(*args):
+        outputs = pid_kernel.update3(*args)
+        answered.append(outputs is not None)
+        return outputs
+
+    monkeypatch.setattr(attitude_controller, "update3", counted)
     compiled = _fly(4000)
-    assert len(calls) == 4000  # two per 500 Hz cycle: every cycle ran on the kernel
+    assert len(answered) == 4000 and all(answered)  # two per 500 Hz cycle: every cycle ran on the kernel
     monkeypatch.setattr(attitude_controller, "update3", None)  # the Python
     python = _fly(4000)
     assert compiled == python
