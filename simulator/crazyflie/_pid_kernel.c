@@ -17,7 +17,7 @@ min and max are Python's (the first argument unless the second compares beyond i
 Python's does), and int() of a finite double within +-32767 truncates toward zero in both.
 tests/simulator/test_pid_kernel.py checks the bits against the Python. */
 
-#include "../../model/_kernels.h" /* includes Python.h; read_floats, check_nargs */
+#include "../../model/_kernels.h" /* includes Python.h; check_nargs */
 
 #define N_AXES 3
 #define INT16_LIMIT 32767.0 /* attitude_controller.INT16_MAX: saturateSignedInt16's bound */
