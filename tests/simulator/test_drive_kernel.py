@@ -12,14 +12,12 @@ import struct
 
 import numpy as np
 import pytest
+from faithful_flight import fly_faithful
 
-from link.messages import AttitudeTarget, ExternalPose, ThrustMoment
-from model.frames import quat_from_euler_zyx
-from model.vehicle import load_mocap_room, load_vehicle
+from model.vehicle import load_vehicle
 from simulator.crazyflie import drive_kernel
 from simulator.crazyflie.stabilizer import CrazyflieFirmware, load_crazyflie_params
 from simulator.firmware import MOTORS_OFF, load_firmware_params
-from simulator.vehicle_sim import SimVehicle
 
 needs_compiled = pytest.mark.skipif(
     not drive_kernel.COMPILED,
@@ -161,31 +159,13 @@ def test_compiled_force_torque_mixer_is_the_pythons():
 
 def _fly(mode: str, steps: int) -> list[bytes]:
     """Every 500 Hz cycle's PWM, forces, battery and truth of the faithful vehicle flown by fixed setpoints
-    that tilt and turn it, with the mocap pose streamed as extpose."""
-    vehicle = load_vehicle("cf21")
-    sim = SimVehicle(vehicle, np.random.default_rng(4), mocap_room=load_mocap_room("vicon"),
-                     initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True, firmware="crazyflie")
-    fw = sim.firmware
-    assert (fw._drive_constants is not None) == (fw.force_torque._compiled is not None) == drive_kernel.COMPILED
-    out = []
-    for k in range(steps):
-        t = sim.t_s
-        if k % 10 == 0:
-            truth = sim.truth
-            sim.handle_uplink(ExternalPose(t, truth.position_enu_m, truth.attitude_wxyz), t)
-            if mode == "attitude":
-                tilt = quat_from_euler_zyx(0.3 * np.sin(t), 0.2 * np.cos(2.0 * t), 0.1)
-                sim.handle_uplink(AttitudeTarget(t, 1.1 * vehicle.weight_n, tuple(tilt)), t)
-            else:
-                wobble = (2e-5 * np.sin(5.0 * t), -2e-5 * np.cos(3.0 * t), 1e-5)
-                sim.handle_uplink(ThrustMoment(t, 1.05 * vehicle.weight_n, wobble), t)
-        sim.step()
-        sim.pop_outputs()
+    that tilt and turn it, with the mocap pose streamed as extpose (faithful_flight)."""
+    def record(sim) -> bytes:
         fw, truth = sim.firmware, sim.truth
-        out.append(repr(fw.motor_pwm).encode() + _bits([*fw.motor_forces_n, fw.supply_v, fw.battery.voltage_v,
-                                                        fw.battery.drawn_as, *truth.position_enu_m,
-                                                        *truth.attitude_wxyz]))
-    return out
+        assert (fw._drive_constants is not None) == (fw.force_torque._compiled is not None) == drive_kernel.COMPILED
+        return repr(fw.motor_pwm).encode() + _bits([*fw.motor_forces_n, fw.supply_v, fw.battery.voltage_v,
+                                                    fw.battery.drawn_as, *truth.position_enu_m, *truth.attitude_wxyz])
+    return fly_faithful("cf21", mode, steps, record, seed=4, extpose_in_moments=True)
 
 
 @needs_compiled

@@ -9,12 +9,11 @@ import struct
 
 import numpy as np
 import pytest
+from faithful_flight import fly_faithful
 
-from link.messages import AttitudeTarget, ExternalPose, ThrustMoment
 from model.frames import quat_from_euler_zyx
-from model.vehicle import load_mocap_room, load_vehicle
+from model.vehicle import load_vehicle
 from simulator import dynamics, dynamics_kernels
-from simulator.vehicle_sim import SimVehicle
 
 needs_compiled = pytest.mark.skipif(
     not dynamics_kernels.COMPILED,
@@ -126,28 +125,12 @@ def test_compiled_rotor_kernels_refuse_bad_arguments_with_one_error():
 
 
 def _fly(vehicle_name: str, mode: str, steps: int) -> list[bytes]:
-    """Every physics step's truth of a faithful vehicle flown by fixed setpoints that tilt and turn it."""
-    vehicle = load_vehicle(vehicle_name)
-    sim = SimVehicle(vehicle, np.random.default_rng(3), mocap_room=load_mocap_room("vicon"),
-                     initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True, firmware="crazyflie")
-    out = []
-    for k in range(steps):
-        t = sim.t_s
-        if k % 10 == 0:
-            truth = sim.truth
-            if mode == "attitude":
-                sim.handle_uplink(ExternalPose(t, truth.position_enu_m, truth.attitude_wxyz), t)
-                tilt = quat_from_euler_zyx(0.3 * np.sin(t), 0.2 * np.cos(2.0 * t), 0.1)
-                sim.handle_uplink(AttitudeTarget(t, 1.1 * vehicle.weight_n, tuple(tilt)), t)
-            else:
-                wobble = (2e-5 * np.sin(5.0 * t), -2e-5 * np.cos(3.0 * t), 1e-5)  # N m: sways, never tumbles
-                sim.handle_uplink(ThrustMoment(t, 1.05 * vehicle.weight_n, wobble), t)
-        sim.step()
-        sim.pop_outputs()
+    """Every physics step's truth of a faithful vehicle flown by fixed setpoints that tilt and turn it
+    (faithful_flight)."""
+    def record(sim) -> bytes:
         truth = sim.truth
-        out.append(_bits([*truth.position_enu_m, *truth.velocity_enu_mps, *truth.attitude_wxyz,
-                          *truth.rate_flu_radps]))
-    return out
+        return _bits([*truth.position_enu_m, *truth.velocity_enu_mps, *truth.attitude_wxyz, *truth.rate_flu_radps])
+    return fly_faithful(vehicle_name, mode, steps, record, seed=3)
 
 
 @needs_compiled

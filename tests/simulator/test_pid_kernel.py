@@ -12,17 +12,17 @@ import struct
 
 import numpy as np
 import pytest
+from faithful_flight import fly_faithful
 
-from link.messages import AttitudeTarget, CommandKind, ExternalPose, VehicleCommand
+from link.messages import AttitudeTarget, CommandKind, VehicleCommand
 from model.frames import quat_from_euler_zyx
-from model.vehicle import load_mocap_room, load_vehicle
+from model.vehicle import load_vehicle
 from simulator.crazyflie import attitude_controller, pid_kernel
 from simulator.crazyflie.attitude_controller import AttitudeController
 from simulator.crazyflie.controller_pid import Setpoint
 from simulator.crazyflie.pid import Pid
 from simulator.crazyflie.stabilizer import ATTITUDE_MODES, CrazyflieFirmware, _legacy_rpy_deg, load_crazyflie_params
 from simulator.firmware import load_firmware_params
-from simulator.vehicle_sim import SimVehicle
 
 needs_compiled = pytest.mark.skipif(
     not pid_kernel.COMPILED,
@@ -85,15 +85,23 @@ def _both(controller: AttitudeController, name: str, actual, desired):
     return results
 
 
+def _compared_calls(seed: int, name: str, scale: float, calls: int = 5000):
+    """`calls` calls of the controller's `name` on random controllers and inputs within +-scale, each through
+    the kernel and the Python and asserted alike; yields (controller after the call, actual, desired, the
+    kernel's outcome as _both gives it)."""
+    rng = np.random.default_rng(seed)
+    for _ in range(calls):
+        controller = _random_controller(rng)
+        actual, desired = _random_vector(rng, scale), _random_vector(rng, scale)
+        compiled, python = _both(controller, name, actual, desired)
+        assert compiled == python, (actual, desired)
+        yield controller, actual, desired, compiled
+
+
 @needs_compiled
 def test_compiled_attitude_pids_are_the_pythons_bit_for_bit():
-    rng = np.random.default_rng(31)
     wrapped = clamped = limited = 0
-    for _ in range(5000):
-        controller = _random_controller(rng)
-        actual, desired = _random_vector(rng, 200.0), _random_vector(rng, 200.0)
-        compiled, python = _both(controller, "correct_attitude", actual, desired)
-        assert compiled == python, (actual, desired)
+    for controller, actual, desired, _ in _compared_calls(31, "correct_attitude", 200.0):
         wrapped += abs(desired[2] - actual[2]) > 180.0
         clamped += any(p.i_limit and abs(p.integ) == p.i_limit for p in controller.attitude)
         limited += any(p.output_limit and abs(p.out_p + p.out_d + p.out_i + p.kff * d) > p.output_limit
@@ -105,13 +113,8 @@ def test_compiled_attitude_pids_are_the_pythons_bit_for_bit():
 def test_compiled_rate_pids_are_the_pythons_bit_for_bit():
     """int16 outputs, saturated at +-32767 and truncated toward zero; a NaN output raises ValueError (int() of
     NaN) in both, the PIDs before it updated and those after it not."""
-    rng = np.random.default_rng(32)
     saturated = truncated = raised = 0
-    for _ in range(5000):
-        controller = _random_controller(rng)
-        actual, desired = _random_vector(rng, 2000.0), _random_vector(rng, 2000.0)
-        compiled, python = _both(controller, "correct_rate", actual, desired)
-        assert compiled == python, (actual, desired)
+    for _, _, _, compiled in _compared_calls(32, "correct_rate", 2000.0):
         if compiled[0] is ValueError:
             raised += 1
             continue
@@ -149,23 +152,11 @@ def test_the_kernel_leaves_to_the_python_what_it_does_not_do_alike():
 
 def _fly(steps: int) -> list[bytes]:
     """Every step's PWM and truth of the faithful vehicle flown in attitude mode by setpoints that tilt and turn
-    it, with the mocap pose streamed as extpose."""
-    vehicle = load_vehicle("cf21")
-    sim = SimVehicle(vehicle, np.random.default_rng(4), mocap_room=load_mocap_room("vicon"),
-                     initial_position_enu_m=(0.0, 0.0, 1.0), airborne=True, firmware="crazyflie")
-    out = []
-    for k in range(steps):
-        t = sim.t_s
-        if k % 10 == 0:
-            truth = sim.truth
-            sim.handle_uplink(ExternalPose(t, truth.position_enu_m, truth.attitude_wxyz), t)
-            tilt = quat_from_euler_zyx(0.3 * np.sin(t), 0.2 * np.cos(2.0 * t), 2.0 * t)  # yaw past +-180 deg
-            sim.handle_uplink(AttitudeTarget(t, 1.1 * vehicle.weight_n, tuple(tilt)), t)
-        sim.step()
-        sim.pop_outputs()
-        fw, truth = sim.firmware, sim.truth
-        out.append(repr(fw.motor_pwm).encode() + _bits([*truth.position_enu_m, *truth.attitude_wxyz]))
-    return out
+    it, its yaw passing +-180 deg, with the mocap pose streamed as extpose (faithful_flight)."""
+    def record(sim) -> bytes:
+        truth = sim.truth
+        return repr(sim.firmware.motor_pwm).encode() + _bits([*truth.position_enu_m, *truth.attitude_wxyz])
+    return fly_faithful("cf21", "attitude", steps, record, seed=4, yaw_rad=lambda t: 2.0 * t)
 
 
 @needs_compiled
