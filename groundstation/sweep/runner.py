@@ -92,7 +92,9 @@ class DaskRunner:
     opts: SweepOptions
     client: Client = field(init=False)
     cluster: LocalCluster | None = field(init=False, default=None)
-    started_on: dict[str, str] = field(init=False, default_factory=dict)  # task key -> worker address
+    # task key -> the workers it started on, in order: dask flies a task again when its worker left before
+    # the client had its result, even after it finished there
+    started_on: dict[str, list[str]] = field(init=False, default_factory=dict)
     lost_workers: set[str] = field(init=False, default_factory=set)  # workers that left while flying ours
     _missing_once: set[str] = field(init=False, default_factory=set)  # flying workers the last look missed
 
@@ -109,7 +111,7 @@ class DaskRunner:
     def _listen(self) -> None:
         def started(event) -> None:  # runs on the client's event loop: (time, message)
             message = event[1]
-            self.started_on[message["key"]] = message["worker"]
+            self.started_on.setdefault(message["key"], []).append(message["worker"])
 
         self.client.subscribe_topic(STARTED_TOPIC, started)
 
@@ -159,39 +161,54 @@ class DaskRunner:
         neither). Progress counts each lost worker once, however many flights it took down."""
         alive = set(self.client.scheduler_info().get("workers", {}))
         for flight in flights:
-            flight.worker = self.started_on.get(flight.future.key, flight.worker)
+            flight.worker = next(reversed(self._flown_on(flight)), flight.worker)
         missing = {f.worker for f in flights if f.worker is not None and f.worker not in alive}
         gone, self._missing_once = missing & self._missing_once, missing
         for flight in flights:
             if flight.worker in gone and not flight.worker_lost:
-                flight.worker_lost = True
-                self.lost_workers.add(flight.worker)
-                log.warning("worker %s lost while flying %s", flight.worker, flight.job.cell.label)
-                self.started_on.pop(flight.future.key, None)  # dask may start it again elsewhere
+                self._lose(flight, [flight.worker], progress)
+
+    def _flown_on(self, flight: _Flight) -> list[str]:
+        """The workers it started on, in order (a copy: the client's event loop appends to the list)."""
+        return list(self.started_on.get(flight.future.key, ()))
+
+    def _lose(self, flight: _Flight, workers: Sequence[str], progress: Progress) -> None:
+        flight.worker_lost = True
+        self.lost_workers.update(workers)
         progress.lost_workers = len(self.lost_workers)
+        log.warning("worker %s lost while flying %s", ", ".join(workers), flight.job.cell.label)
 
     def _finish(self, flight: _Flight, on_row: Callable[[dict], None], progress: Progress) -> _Flight | None:
         """Record a finished future, or start its retry (returned)."""
         job = flight.job
-        lost = flight.worker_lost or flight.previous_lost
-        if flight.future.status == "finished":
+        error = None
+        try:
+            # If the worker holding the result has just died, dask flies the task again elsewhere and this
+            # waits for that flight (seen in CI: "Couldn't gather 1 keys, rescheduling").
             measured = flight.future.result()
-            if measured.get("cell_status") == "bad_input":
-                raise UserError(f"cell {job.cell.label}: {measured.get('reason')}")
-            retry = measured.get("cell_status") in RETRIED_STATUSES
-        else:  # the task raised, or dask gave up on it after losing its worker (KilledWorker)
-            error = flight.future.exception()
+        except Exception as raised:  # noqa: BLE001 -- the task raised, or dask gave up on it (KilledWorker)
+            error = raised
+        flown_on = self._flown_on(flight)
+        if len(flown_on) > 1 and not flight.worker_lost:  # its worker left after it had started it
+            self._lose(flight, flown_on[:-1], progress)
+        if error is not None:
             status = "lost_worker" if flight.worker_lost or type(error).__name__ == "KilledWorker" else "error"
             measured = {"cell_status": status, "success": False, "result": status,
                         "reason": f"{type(error).__name__}: {error}"[:200]}
             retry = True
+        else:
+            if measured.get("cell_status") == "bad_input":
+                raise UserError(f"cell {job.cell.label}: {measured.get('reason')}")
+            retry = measured.get("cell_status") in RETRIED_STATUSES
+        lost = flight.worker_lost or flight.previous_lost
         if retry and job.attempt < MAX_ATTEMPTS:
             progress.retried += 1
             again = replace(job, attempt=job.attempt + 1)
             return _Flight(again, self._submit(again), previous_lost=lost)
-        # A flight dask moved to another worker by itself (its worker left) was flown twice.
-        rescheduled = flight.worker_lost and flight.future.status == "finished"
-        row = make_row(job.cell, measured, attempts=job.attempt + int(rescheduled), worker_lost=lost)
+        # A flight dask flew again by itself (its worker left) was flown once more per start. A worker seen
+        # leaving mid-flight counts one more even if the new start's event has not reached us yet.
+        reruns = max(len(flown_on) - 1, int(flight.worker_lost and error is None))
+        row = make_row(job.cell, measured, attempts=job.attempt + reruns, worker_lost=lost)
         progress.done += 1
         progress.failed += 0 if row["success"] else 1
         on_row(row)

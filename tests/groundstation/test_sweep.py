@@ -24,10 +24,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from distributed import wait
 from testsupport import free_port
 
 from cfstack.cli import main as cfstack_main
-from groundstation.sweep import cell_task, cli, grid, table
+from groundstation.sweep import cell_task, cli, grid, runner, table
 from model.config import Params, dump_toml
 from model.errors import ConfigError, UserError
 from model.radio import load_radio_profile, radio_profile_path
@@ -479,6 +480,34 @@ def test_killing_a_worker_mid_sweep_loses_no_finished_row(tmp_path, dask_cluster
     assert "lost workers 1" in stderr, stderr
     lost = [r for r in rows.values() if r["worker_lost"]]
     assert all(r["attempts"] == 2 for r in lost)
+
+
+@pytest.mark.slow
+def test_a_worker_dying_after_finishing_a_flight_before_handing_it_over_lost_it(tmp_path, dask_cluster):
+    """The race the test above can meet (it did in CI): the flight finished on the worker, which died before
+    the client fetched the result. Dask flies it again on another worker; its row says the worker was lost
+    and that it took two flights."""
+    address, start_worker = dask_cluster
+    victim = start_worker()
+    opts = cli.parse_options([*HOVER, "--latency", "0", "--loss", "0", "--scheduler", address,
+                              "--out", str(tmp_path / "sweep")])
+    bases = _bases(opts)
+    (job,) = cli._jobs(opts, grid.grid_cells(opts, bases), bases)
+    dask = runner.DaskRunner(opts)
+    try:
+        flight = runner._Flight(job, dask._submit(job))
+        wait(flight.future, timeout=300)  # flown on the victim, the only worker; the client has not fetched it
+        start_worker()
+        dask.client.wait_for_workers(2, timeout=60)
+        _kill(victim)
+        rows, progress = [], runner.Progress()
+        assert dask._finish(flight, rows.append, progress) is None  # recorded, not retried by us
+    finally:
+        dask.close()
+    (row,) = rows
+    assert row["cell_status"] == "flown" and row["success"]
+    assert row["worker_lost"] and row["attempts"] == 2
+    assert progress.lost_workers == 1 and progress.done == 1 and progress.retried == 0
 
 
 @pytest.mark.slow
