@@ -28,6 +28,7 @@ from groundstation.sweep.table import make_row
 from model.errors import UserError
 
 POLL_S = 0.25  # how often the client looks at its futures and redraws the bar
+RESULT_WAIT_S = 10.0  # longest wait for a finished flight's result (its worker may have just died with it)
 CONNECT_TIMEOUT_S = 20.0
 MAX_ATTEMPTS = 2  # the first flight and one retry
 RETRIED_STATUSES = ("crash", "wall_timeout")
@@ -179,14 +180,17 @@ class DaskRunner:
         log.warning("worker %s lost while flying %s", ", ".join(workers), flight.job.cell.label)
 
     def _finish(self, flight: _Flight, on_row: Callable[[dict], None], progress: Progress) -> _Flight | None:
-        """Record a finished future, or start its retry (returned)."""
+        """Record a finished future; or start its retry and return it; or return the flight itself when
+        it is not finished after all (its result died with its worker: dask flies it again)."""
         job = flight.job
         error = None
         try:
-            # If the worker holding the result has just died, dask flies the task again elsewhere and this
-            # waits for that flight (seen in CI: "Couldn't gather 1 keys, rescheduling").
-            measured = flight.future.result()
+            # When the worker holding the result has just died, dask's gather fails ("Couldn't gather 1
+            # keys, rescheduling", seen in CI) and the future is pending again until another worker flew it.
+            measured = flight.future.result(timeout=RESULT_WAIT_S)
         except Exception as raised:  # noqa: BLE001 -- the task raised, or dask gave up on it (KilledWorker)
+            if flight.future.status not in ("error", "cancelled"):
+                return flight  # not finished: watched again from the run loop
             error = raised
         flown_on = self._flown_on(flight)
         if len(flown_on) > 1 and not flight.worker_lost:  # its worker left after it had started it
