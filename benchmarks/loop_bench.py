@@ -279,14 +279,20 @@ def critical_path_table(flights, results, floor, floor_critical, measured_share)
     Hence a flight at its floor's share (P_floor + C) / (P + C), and 80 % needs P <= (P_floor + C) / 0.8 - C.
     The model holds while the ground station waits for each tick. `in` is the share of ticks whose record was
     already there when the ground station asked (it was the bottleneck: all its work per tick counts, the
-    log row and truth after the ack too), `CPU` its process's CPU time per tick (us, all threads)."""
+    log row and truth after the ack too), `CPU` its process's CPU time per tick (us, all threads).
+    What the model leaves out is measured too: X = the flight's wall time for n ticks - (P + C), the time
+    only a flight spends (its processes' extra wake-ups, the ground station's work after the ack when it is
+    the bottleneck). `if P = P_floor` is the share a flight would reach with X unchanged and a critical path
+    no longer than the zero-work responder's, (P_floor + C) / (P_floor + C + X): the most that making the
+    ground station's critical path cheaper can give."""
     print("\n   critical path per tick (tick record taken -> ack sent, mean us; the rest of a tick overlaps the "
           "emulator):\n   n ticks cost P + C, C = n x floor period - P_floor (the emulator's step and two zenoh "
           "hops; the matched floor's);\n   share of the matched floor predicted (P_floor + C) / (P + C); in = ticks "
           "whose record was already there\n   when asked for (the ground station was the bottleneck), CPU = its "
-          "process's CPU us per tick (new)")
+          "process's CPU us per tick (new);\n   X = the flight's wall time for n ticks - (P + C), what the model "
+          "leaves out; 'if P = P_floor' = (P_floor + C) / (P_floor + C + X)")
     print(f"{'flight':18} {'mode':9} {'n':>2} {'P base':>7} {'P new':>6} {'P floor':>7} {'C':>6} "
-          f"{'predicted':>9} {'measured':>8} {'P for 80%':>9} {'in':>5} {'CPU':>5}")
+          f"{'predicted':>9} {'measured':>8} {'P for 80%':>9} {'in':>5} {'CPU':>5} {'X':>5} {'if P = P_floor':>14}")
     horizon_s = Emulator(emulator_bench.make_config(DEFAULT_MAVLINK_RADIO, 1, 0)).lockstep.lookahead_horizon_s()
     for name, _ in flights:
         for mode in TARGET_RTF:
@@ -303,8 +309,10 @@ def critical_path_table(flights, results, floor, floor_critical, measured_share)
                           for key in ("tick_record_ready_fraction", "process_cpu_us_per_tick"))
             ready_cell = "-" if ready is None else f"{ready:.0%}"
             cpu_cell = "-" if cpu is None else f"{cpu:.0f}"
+            rest = n * period_s / (measured * floor[name, mode]) * 1e6 - (p[1] + c)  # X
             print(f"{name:18} {mode:9} {n:2d} {base:>7} {p[1]:6.0f} {p_floor:7.0f} {c:6.0f} "
-                  f"{(p_floor + c) / (p[1] + c):9.0%} {measured:8.0%} {needed:9.0f} {ready_cell:>5} {cpu_cell:>5}")
+                  f"{(p_floor + c) / (p[1] + c):9.0%} {measured:8.0%} {needed:9.0f} {ready_cell:>5} {cpu_cell:>5} "
+                  f"{rest:5.0f} {(p_floor + c) / (p_floor + c + rest):14.0%}")
 
 
 def _median_or_none(values: list) -> float | None:
