@@ -309,10 +309,10 @@ def critical_path_table(flights, results, floor, floor_critical, measured_share)
                           for key in ("tick_record_ready_fraction", "process_cpu_us_per_tick"))
             ready_cell = "-" if ready is None else f"{ready:.0%}"
             cpu_cell = "-" if cpu is None else f"{cpu:.0f}"
-            rest = n * period_s / (measured * floor[name, mode]) * 1e6 - (p[1] + c)  # X
+            x_us = (p_floor + c) / measured - (p[1] + c)  # the flight's n ticks: the floor's (P_floor + C) / share
             print(f"{name:18} {mode:9} {n:2d} {base:>7} {p[1]:6.0f} {p_floor:7.0f} {c:6.0f} "
                   f"{(p_floor + c) / (p[1] + c):9.0%} {measured:8.0%} {needed:9.0f} {ready_cell:>5} {cpu_cell:>5} "
-                  f"{rest:5.0f} {(p_floor + c) / (p_floor + c + rest):14.0%}")
+                  f"{x_us:5.0f} {(p_floor + c) / (p_floor + c + x_us):14.0%}")
 
 
 def _median_or_none(values: list) -> float | None:
