@@ -162,7 +162,9 @@ class DaskRunner:
         neither). Progress counts each lost worker once, however many flights it took down."""
         alive = set(self.client.scheduler_info().get("workers", {}))
         for flight in flights:
-            flight.worker = next(reversed(self._flown_on(flight)), flight.worker)
+            flown_on = self.started_on.get(flight.future.key)
+            if flown_on:
+                flight.worker = flown_on[-1]  # where it flies now
         missing = {f.worker for f in flights if f.worker is not None and f.worker not in alive}
         gone, self._missing_once = missing & self._missing_once, missing
         for flight in flights:
