@@ -284,15 +284,21 @@ def critical_path_table(flights, results, floor, floor_critical, measured_share)
     only a flight spends (its processes' extra wake-ups, the ground station's work after the ack when it is
     the bottleneck). `if P = P_floor` is the share a flight would reach with X unchanged and a critical path
     no longer than the zero-work responder's, (P_floor + C) / (P_floor + C + X): the most that making the
-    ground station's critical path cheaper can give."""
+    ground station's critical path cheaper can give.
+    `loop CPU` is the CPU time per tick of the flight loop's own thread, which is serial: no tick can take
+    less wall time than that, so a flight cannot reach 80 % while it exceeds `80 % wall`, the wall time per
+    tick at 80 % of the matched floor (its period over 0.8 x the floor's real-time factor)."""
     print("\n   critical path per tick (tick record taken -> ack sent, mean us; the rest of a tick overlaps the "
           "emulator):\n   n ticks cost P + C, C = n x floor period - P_floor (the emulator's step and two zenoh "
           "hops; the matched floor's);\n   share of the matched floor predicted (P_floor + C) / (P + C); in = ticks "
           "whose record was already there\n   when asked for (the ground station was the bottleneck), CPU = its "
           "process's CPU us per tick (new);\n   X = the flight's wall time for n ticks - (P + C), what the model "
-          "leaves out; 'if P = P_floor' = (P_floor + C) / (P_floor + C + X)")
+          "leaves out; 'if P = P_floor' = (P_floor + C) / (P_floor + C + X);\n   loop CPU = the flight loop's "
+          "own thread's CPU us per tick (new): a lower bound on its wall time per tick, against '80% wall', the "
+          "wall us per tick\n   at 80 % of the matched floor")
     print(f"{'flight':18} {'mode':9} {'n':>2} {'P base':>7} {'P new':>6} {'P floor':>7} {'C':>6} "
-          f"{'predicted':>9} {'measured':>8} {'P for 80%':>9} {'in':>5} {'CPU':>5} {'X':>5} {'if P = P_floor':>14}")
+          f"{'predicted':>9} {'measured':>8} {'P for 80%':>9} {'in':>5} {'CPU':>5} {'X':>5} {'if P = P_floor':>14} "
+          f"{'loop CPU':>8} {'80% wall':>8}")
     horizon_s = Emulator(emulator_bench.make_config(DEFAULT_MAVLINK_RADIO, 1, 0)).lockstep.lookahead_horizon_s()
     for name, _ in flights:
         for mode in TARGET_RTF:
@@ -305,14 +311,17 @@ def critical_path_table(flights, results, floor, floor_critical, measured_share)
             measured = measured_share[name, mode]
             needed = (p_floor + c) / FLOOR_SHARE_TARGET - c
             base = "-" if p[0] is None else f"{p[0]:.0f}"  # a revision before the measure: not reported
-            ready, cpu = (_median_or_none([plain["timing"].get(key) for plain, _ in results[name, mode, "new"]])
-                          for key in ("tick_record_ready_fraction", "process_cpu_us_per_tick"))
+            ready, cpu, loop_cpu = (
+                _median_or_none([plain["timing"].get(key) for plain, _ in results[name, mode, "new"]])
+                for key in ("tick_record_ready_fraction", "process_cpu_us_per_tick", "loop_thread_cpu_us_per_tick"))
             ready_cell = "-" if ready is None else f"{ready:.0%}"
-            cpu_cell = "-" if cpu is None else f"{cpu:.0f}"
+            cpu_cell, loop_cpu_cell = ("-" if v is None else f"{v:.0f}" for v in (cpu, loop_cpu))
+            wall_at_target_us = period_s / (FLOOR_SHARE_TARGET * floor[name, mode]) * 1e6
             x_us = (p_floor + c) / measured - (p[1] + c)  # the flight's n ticks: the floor's (P_floor + C) / share
             print(f"{name:18} {mode:9} {n:2d} {base:>7} {p[1]:6.0f} {p_floor:7.0f} {c:6.0f} "
                   f"{(p_floor + c) / (p[1] + c):9.0%} {measured:8.0%} {needed:9.0f} {ready_cell:>5} {cpu_cell:>5} "
-                  f"{x_us:5.0f} {(p_floor + c) / (p_floor + c + x_us):14.0%}")
+                  f"{x_us:5.0f} {(p_floor + c) / (p_floor + c + x_us):14.0%} {loop_cpu_cell:>8} "
+                  f"{wall_at_target_us:8.0f}")
 
 
 def _median_or_none(values: list) -> float | None:

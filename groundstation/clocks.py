@@ -134,12 +134,13 @@ class LockstepClock:
         self._tick_taken_s = 0.0
         # Who waits for whom, from the first tick on: ticks whose record was already in when the loop asked
         # for it (the ground station is then the bottleneck, and all its work per tick counts, not only the
-        # critical path), the wall time spent blocked waiting for records, and the process's CPU time (all
-        # its threads, zenoh's included) to the last tick's end.
+        # critical path), the wall time spent blocked waiting for records, and the CPU time to the last
+        # tick's end of the process (all its threads, zenoh's included) and of the loop's own thread. The
+        # loop's thread is serial: a tick can never take less wall time than its CPU time there.
         self.records_ready = 0
         self.record_wait_s = 0.0
-        self._cpu_first_s: float | None = None
-        self._cpu_last_s = 0.0
+        self._cpu_first_s: tuple[float, float] | None = None  # (process, loop thread) CPU s
+        self._cpu_last_s = (0.0, 0.0)
 
     def start(self) -> None:
         self.transport.send(ClockAck(-1, self.link.uplink_sent, 0, period_ns=self.period_ns,
@@ -152,7 +153,7 @@ class LockstepClock:
         tick = self._next_tick()
         self._tick_taken_s = time.perf_counter()
         if self._cpu_first_s is None:  # from the first tick on, as the loop's wall time (TickTimer)
-            self._cpu_first_s = time.process_time()
+            self._cpu_first_s = (time.process_time(), time.thread_time())
             self.records_ready, self.record_wait_s = 0, 0.0  # the wait for the emulator to boot is no tick's
         self.t_s = tick.time_s  # frames of this tick are received at its time (their ages depend on it)
         radio = tick.crtp_published if self.link.speaks_crtp else tick.downlink_published
@@ -222,8 +223,8 @@ class LockstepClock:
 
     def critical_path_summary(self) -> dict:
         """The tick record -> ack times (see __init__), microseconds: median and mean; the share of ticks
-        whose record was in when asked for, the mean wait for a record per tick (us) and the process's CPU
-        time per tick (us)."""
+        whose record was in when asked for, the mean wait for a record per tick (us), and the CPU time per
+        tick (us) of the process and of the loop's thread."""
         if not self.ack_after_tick_s:
             return {}
         us = np.array(self.ack_after_tick_s) * 1e6
@@ -231,11 +232,12 @@ class LockstepClock:
         return {"ack_after_tick_us_p50": float(np.median(us)), "ack_after_tick_us_mean": float(us.mean()),
                 "tick_record_ready_fraction": self.records_ready / ticks,
                 "tick_record_wait_us_mean": self.record_wait_s / ticks * 1e6,
-                "process_cpu_us_per_tick": (self._cpu_last_s - self._cpu_first_s) / ticks * 1e6}
+                "process_cpu_us_per_tick": (self._cpu_last_s[0] - self._cpu_first_s[0]) / ticks * 1e6,
+                "loop_thread_cpu_us_per_tick": (self._cpu_last_s[1] - self._cpu_first_s[1]) / ticks * 1e6}
 
     def done(self) -> None:
         self.timer.stop()
-        self._cpu_last_s = time.process_time()
+        self._cpu_last_s = (time.process_time(), time.thread_time())
 
     def leave(self) -> None:
         self.transport.send(ClockAck(self.tick, self.link.uplink_sent, 0, leaving=True).pack())

@@ -5,6 +5,8 @@ ground station adds to every simulated tick (benchmarks/loop_bench.py reads it f
 Driven here with an in-memory clock key and a link with no frames; the waits are real sleeps.
 """
 
+import hashlib
+import threading
 import time
 
 from groundstation.clocks import LockstepClock
@@ -98,3 +100,39 @@ def test_the_summary_says_which_records_were_in_how_long_the_loop_waited_and_its
     assert 3 * LATE_S / 6 * 1e6 <= summary["tick_record_wait_us_mean"] < 4 * LATE_S / 6 * 1e6
     # six ticks' CPU work (the first tick's record taken -> the last tick done), and no more than work + waits
     assert WORK_S * 1e6 <= summary["process_cpu_us_per_tick"] < (WORK_S + LATE_S) * 1e6
+
+
+def test_the_loop_threads_cpu_per_tick_is_its_own_work_not_the_other_threads_nor_the_waits():
+    """The loop's thread is serial, so its CPU per tick bounds the tick's wall time from below
+    (loop_bench prints it against the wall time a target allows): it must count that thread's work only."""
+    transport = LateTicks(4)
+    clock = LockstepClock(PERIOD_S, NoFrames(), transport)
+    helper_cpu_s, stop = [], threading.Event()
+
+    def other_thread():  # CPU in another thread of the process (hashlib releases the GIL on large buffers)
+        data = bytes(1 << 20)
+        while not stop.is_set():
+            hashlib.sha256(data).digest()
+        helper_cpu_s.append(time.thread_time())
+
+    helper = None
+    for k in range(4):
+        clock.wait()
+        if k == 0:  # the other thread runs inside the measured span only
+            helper = threading.Thread(target=other_thread)
+            helper.start()
+        cpu_end = time.thread_time() + WORK_S
+        while time.thread_time() < cpu_end:
+            pass
+        clock.release(clock.now() + PERIOD_S)
+        if k == 3:
+            stop.set()
+            helper.join()
+        clock.done()
+    summary = clock.critical_path_summary()
+    loop_us, process_us = summary["loop_thread_cpu_us_per_tick"], summary["process_cpu_us_per_tick"]
+    # the four ticks' work in this thread; the three late records' waits (sleeps) add no CPU
+    assert WORK_S * 1e6 <= loop_us < (WORK_S + LATE_S / 2) * 1e6
+    # the process's CPU holds this thread's and the other thread's (both measured by the kernel's CPU clocks)
+    assert helper_cpu_s[0] > 0.01
+    assert process_us * 4 >= (loop_us * 4 + helper_cpu_s[0] * 1e6) - 1e3

@@ -59,7 +59,9 @@ def test_fly_hover_in_moments_mode_meets_the_hover_target_and_logs_everything(tm
     assert 0 < timing["ack_after_tick_us_p50"] < tick_us and 0 < timing["ack_after_tick_us_mean"] < tick_us
     # a tick's wall time holds its wait for the record and its critical path (and the work after the ack)
     assert timing["tick_record_wait_us_mean"] + timing["ack_after_tick_us_mean"] < tick_us
-    assert timing["process_cpu_us_per_tick"] > 0
+    # the loop's thread is one of the process's threads, and serial: its CPU per tick fits in the tick's wall time
+    assert 0 < timing["loop_thread_cpu_us_per_tick"] <= timing["process_cpu_us_per_tick"]
+    assert timing["loop_thread_cpu_us_per_tick"] < tick_us
 
     # The link figures agree with what the log holds, frame for frame.
     link = summary["link"]
