@@ -105,6 +105,11 @@ class RealtimeClock:
         return self.ticks / elapsed if elapsed > 0 else 0.0
 
 
+def _cpu_times_s() -> tuple[float, float]:
+    """CPU seconds so far of the process (all its threads) and of the calling thread (the flight loop's)."""
+    return time.process_time(), time.thread_time()
+
+
 class LockstepClock:
     """Follows the emulator's simulation clock; t is simulation time from the tick."""
 
@@ -153,7 +158,7 @@ class LockstepClock:
         tick = self._next_tick()
         self._tick_taken_s = time.perf_counter()
         if self._cpu_first_s is None:  # from the first tick on, as the loop's wall time (TickTimer)
-            self._cpu_first_s = (time.process_time(), time.thread_time())
+            self._cpu_first_s = _cpu_times_s()
             self.records_ready, self.record_wait_s = 0, 0.0  # the wait for the emulator to boot is no tick's
         self.t_s = tick.time_s  # frames of this tick are received at its time (their ages depend on it)
         radio = tick.crtp_published if self.link.speaks_crtp else tick.downlink_published
@@ -237,7 +242,7 @@ class LockstepClock:
 
     def done(self) -> None:
         self.timer.stop()
-        self._cpu_last_s = (time.process_time(), time.thread_time())
+        self._cpu_last_s = _cpu_times_s()
 
     def leave(self) -> None:
         self.transport.send(ClockAck(self.tick, self.link.uplink_sent, 0, leaving=True).pack())
