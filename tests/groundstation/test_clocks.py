@@ -83,14 +83,19 @@ class AlternateTicks(LateTicks):
         return [self.records.pop(0)]
 
 
+def _use_cpu(seconds: float) -> None:
+    """Work that uses `seconds` of this thread's CPU time, however busy the machine."""
+    end = time.thread_time() + seconds
+    while time.thread_time() < end:
+        pass
+
+
 def test_the_summary_says_which_records_were_in_how_long_the_loop_waited_and_its_cpu_per_tick():
     transport = AlternateTicks(6)  # records left 6: in; 5: late; 4: in; 3: late; 2: in; 1: late
     clock = LockstepClock(PERIOD_S, NoFrames(), transport)
     for _ in range(6):
         clock.wait()
-        cpu_end = time.process_time() + WORK_S  # work that uses the CPU, however busy the machine
-        while time.process_time() < cpu_end:
-            pass
+        _use_cpu(WORK_S)
         clock.release(clock.now() + PERIOD_S)
         clock.done()
     summary = clock.critical_path_summary()
@@ -121,9 +126,7 @@ def test_the_loop_threads_cpu_per_tick_is_its_own_work_not_the_other_threads_nor
         if k == 0:  # the other thread runs inside the measured span only
             helper = threading.Thread(target=other_thread)
             helper.start()
-        cpu_end = time.thread_time() + WORK_S
-        while time.thread_time() < cpu_end:
-            pass
+        _use_cpu(WORK_S)
         clock.release(clock.now() + PERIOD_S)
         if k == 3:
             stop.set()
