@@ -1,0 +1,221 @@
+"""Where a lockstep tick's wall time goes, from both processes' clocks (issue 19).
+
+Takes in: the flight mode (--mode), how many flights (--flights), and --without-bookkeeping, which flies each
+flight a second time, interleaved, with the ground station's work after the ack (truth, log row, flight
+record) left out: a what-if, not a flight anyone would fly (its grade is meaningless).
+Gives out: per flight, medians (and quartiles) of one lockstep cycle's parts, in us:
+- P: the ground station's tick record taken -> its ack sent (its critical path, as the summary's);
+- ack hop: ack sent -> the emulator handling it;
+- E: the emulator handling the ack of tick k -> having published the record of tick k + n (its physics
+  steps, its frames, the record), n = the ticks one emulator round covers (2 when its lookahead covers a
+  whole tick, as at 500 Hz; else 1);
+- record hop: that record published -> the ground station holding it, over the ticks the ground station
+  blocked for (its record was not in when it asked);
+- of those, the share whose record was published before the ground station started to block, and for how
+  long it had been busy since; then the hop counted from when both were ready (the later of the two).
+When the ground station waits for each record, n ticks take ack hop + E + record hop + P: the line "n x period"
+checks that against the measured period. Plus the summary's wall time per tick, the flight loop thread's CPU
+and the record wait per tick.
+
+How: the flights run as `cfstack fly` processes (the emulator is its child) with a sitecustomize on PYTHONPATH
+that wraps LockstepClock.release/_next_tick in the ground station and Lockstep.handle/LockstepClock.publish_tick
+in the emulator, stamping CLOCK_MONOTONIC (one clock for every process on a machine), and each process writes
+its stamps at exit. The wrappers cost about a microsecond per tick.
+
+Usage: python benchmarks/lockstep_hops.py [--mode moments|attitude] [--flights N] [--without-bookkeeping]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+from tempfile import TemporaryDirectory
+
+from bench_paths import NEUTRAL_CWD
+
+STAMPS_ENV = "CFSTACK_HOPS_STAMPS"  # the prefix of the stamp files each process writes
+SKIP_ENV = "CFSTACK_HOPS_WITHOUT_BOOKKEEPING"
+WARM_UP_TICKS = 100  # the first ticks (start-up, arming) are left out
+
+# Installed as sitecustomize.py in both processes. It patches a module when it is first imported (a meta-path
+# finder wraps the loader), so neither process imports anything it would not have imported anyway.
+SITECUSTOMIZE = '''
+import atexit, importlib.machinery, json, os, sys, time
+
+_OUT = os.environ.get("@STAMPS_ENV@")
+if _OUT:
+    _stamps = {}
+    _clock = time.monotonic
+
+    def _stamp(kind, tick, value=None):
+        _stamps.setdefault(kind, {}).setdefault(tick, _clock() if value is None else value)
+
+    def _ground_station(clocks):
+        cls = clocks.LockstepClock
+        release, next_tick = cls.release, cls._next_tick
+
+        def timed_release(self, next_wakeup_s):
+            release(self, next_wakeup_s)
+            _stamp("ack_sent", self.tick)
+
+        def timed_next_tick(self):
+            if not self._ticks:
+                self._take_ticks(0.0)
+            blocked_at = None if self._ticks else _clock()
+            tick = next_tick(self)
+            _stamp("record_taken", tick.tick)
+            if blocked_at is not None:
+                _stamp("blocked_at", tick.tick, blocked_at)
+            return tick
+        cls.release, cls._next_tick = timed_release, timed_next_tick
+        atexit.register(_dump, "groundstation")
+
+    def _flight(flight):
+        if os.environ.get("@SKIP_ENV@"):
+            flight.FlightLoop.write_row = lambda self, now, step, out: None
+            flight.FlightLoop.absorb_truth = lambda self: None
+
+    def _emulator(lockstep):
+        from link.clock import unpack_ack
+        handle, publish = lockstep.Lockstep.handle, lockstep.LockstepClock.publish_tick
+
+        def timed_handle(self, vehicle_id, data, *args):
+            ack = unpack_ack(data)
+            if ack is not None:
+                _stamp("ack_handled", ack.tick)
+            return handle(self, vehicle_id, data, *args)
+
+        def timed_publish(self, n):
+            publish(self, n)
+            _stamp("published", self.tick)
+        lockstep.Lockstep.handle, lockstep.LockstepClock.publish_tick = timed_handle, timed_publish
+        atexit.register(_dump, "emulator")
+
+    def _dump(role):
+        with open(f"{_OUT}.{role}.{os.getpid()}.json", "w") as f:
+            json.dump(_stamps, f)
+
+    _PATCHES = {"groundstation.clocks": _ground_station, "groundstation.flight": _flight,
+                "simulator.lockstep": _emulator}
+
+    class _Patcher:
+        @staticmethod
+        def find_spec(name, path=None, target=None):
+            if name not in _PATCHES:
+                return None
+            spec = importlib.machinery.PathFinder.find_spec(name, path)
+            if spec is None or spec.loader is None:
+                return None
+            run = spec.loader.exec_module
+
+            def exec_module(module):
+                run(module)
+                _PATCHES[name](module)
+            spec.loader.exec_module = exec_module
+            return spec
+    sys.meta_path.insert(0, _Patcher)
+'''.replace("@STAMPS_ENV@", STAMPS_ENV).replace("@SKIP_ENV@", SKIP_ENV)
+
+
+def fly(mode: str, folder: Path, index: int, skip: bool) -> dict:
+    """One `cfstack fly` circle with stamps; returns its summary's timing and both processes' stamps."""
+    prefix = folder / f"stamps{index}"
+    env = dict(os.environ, **{STAMPS_ENV: str(prefix)})
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(folder), env.get("PYTHONPATH")]))
+    if skip:
+        env[SKIP_ENV] = "1"
+    done = subprocess.run([sys.executable, "-m", "cfstack", "fly", "--trajectory", "circle", "--mode", mode,
+                           "--log", str(folder / f"log{index}"), "--json"],
+                          capture_output=True, text=True, env=env, cwd=NEUTRAL_CWD)
+    if done.returncode not in (0, 1) or not done.stdout.strip():
+        raise SystemExit(f"lockstep_hops: cfstack fly failed: {done.stderr.strip()[-400:]}")
+    stamps = {}
+    for role in ("groundstation", "emulator"):
+        files = list(folder.glob(f"stamps{index}.{role}.*.json"))
+        if len(files) != 1:
+            raise SystemExit(f"lockstep_hops: expected one {role} stamp file, found {len(files)}")
+        stamps[role] = {kind: {int(k): v for k, v in by_tick.items()}
+                        for kind, by_tick in json.loads(files[0].read_text()).items()}
+    return {"timing": json.loads(done.stdout)["timing"], **stamps}
+
+
+def quartiles_us(values: list[float]) -> tuple[float, float, float]:
+    q1, q2, q3 = statistics.quantiles(values, n=4)
+    return q1 * 1e6, q2 * 1e6, q3 * 1e6
+
+
+def cycle(flown: dict) -> dict:
+    """The cycle's parts (module docstring) from one flight's stamps, each as (q1, median, q3) us."""
+    gs, emu = flown["groundstation"], flown["emulator"]
+    sent, taken, blocked_at = gs["ack_sent"], gs["record_taken"], gs.get("blocked_at", {})
+    handled, published = emu["ack_handled"], emu["published"]
+    ticks = sorted(k for k in sent if k >= WARM_UP_TICKS and k in taken and k in handled)
+    # n: 2 when the emulator mostly published tick k + 1 before it handled the ack of tick k (lookahead)
+    ahead = sum(published.get(k + 1, float("inf")) < handled[k] for k in ticks) / len(ticks)
+    n = 2 if ahead > 0.5 else 1
+    rounds = [k for k in ticks if k + n in published and k + n in taken]
+    waited = [k for k in rounds if k + n in blocked_at]
+    early = [k for k in waited if published[k + n] < blocked_at[k + n]]
+    parts = {
+        "P": [sent[k] - taken[k] for k in ticks],
+        "ack hop": [handled[k] - sent[k] for k in ticks],
+        "E": [published[k + n] - handled[k] for k in rounds],
+        "record hop": [taken[k + n] - published[k + n] for k in waited],
+        "busy before blocking": [blocked_at[k + n] - published[k + n] for k in early],
+        "hop once both ready": [taken[k + n] - max(published[k + n], blocked_at[k + n]) for k in waited],
+        "period": [(sent[k + n] - sent[k]) / n for k in rounds if k + n in sent],
+    }
+    return {"n": n, "lookahead share": ahead, "blocked share": len(waited) / len(rounds),
+            "published before blocking": len(early) / max(1, len(waited)),
+            **{name: quartiles_us(values) for name, values in parts.items() if len(values) >= 2}}
+
+
+def report(label: str, flown: dict) -> None:
+    parts, timing = cycle(flown), flown["timing"]
+    wall_us = timing["loop_wall_s"] / timing["ticks"] * 1e6
+    print(f"  {label}: wall {wall_us:.0f} us/tick, loop thread CPU {timing['loop_thread_cpu_us_per_tick']:.0f}, "
+          f"record wait {timing['tick_record_wait_us_mean']:.0f}; n = {parts['n']} (tick k + 1 out before the ack "
+          f"of k: {parts['lookahead share']:.0%}); ground station blocked for {parts['blocked share']:.0%} of "
+          f"records, {parts['published before blocking']:.0%} of those published before it blocked")
+    for name in ("P", "ack hop", "E", "record hop", "busy before blocking", "hop once both ready", "period"):
+        if name in parts:
+            q1, q2, q3 = parts[name]
+            print(f"    {name:22} median {q2:5.0f} us  (quartiles {q1:.0f}-{q3:.0f})")
+    medians = {name: parts[name][1] for name in ("P", "ack hop", "E", "record hop") if name in parts}
+    if len(medians) == 4 and "period" in parts:
+        print(f"    {parts['n']} x period = {parts['n'] * parts['period'][1]:.0f} us against ack hop + E + record hop"
+              f" + P = {sum(medians.values()):.0f} us (medians)")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--mode", choices=("moments", "attitude"), default="moments")
+    parser.add_argument("--flights", type=int, default=2)
+    parser.add_argument("--without-bookkeeping", action="store_true",
+                        help="also fly each flight without the work after the ack (truth, log row, record)")
+    args = parser.parse_args()
+    sys.stdout.reconfigure(line_buffering=True)  # each flight's lines before the next one's progress
+    if args.flights < 1:
+        parser.error("--flights must be at least 1")
+    arms = [False, True] if args.without_bookkeeping else [False]
+    with TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        (folder / "sitecustomize.py").write_text(SITECUSTOMIZE)
+        print(f"lockstep cycle of a {args.mode} circle (cfstack fly, this tree), {args.flights} flight(s)"
+              + (", each also without the bookkeeping after the ack" if args.without_bookkeeping else ""))
+        for i in range(args.flights):
+            for skip in arms if i % 2 == 0 else arms[::-1]:  # interleaved: the machine's load drifts
+                index = 2 * i + skip
+                print(f"  flying {i + 1}/{args.flights}{' without bookkeeping' if skip else ''}", file=sys.stderr,
+                      flush=True)
+                report(f"flight {i + 1}{' without bookkeeping' if skip else ''}", fly(args.mode, folder, index, skip))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
