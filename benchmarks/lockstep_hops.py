@@ -132,8 +132,11 @@ def fly(mode: str, folder: Path, index: int, skip: bool) -> dict:
     done = subprocess.run([sys.executable, "-m", "cfstack", "fly", "--trajectory", "circle", "--mode", mode,
                            "--log", str(folder / f"log{index}"), "--json"],
                           capture_output=True, text=True, env=env, cwd=NEUTRAL_CWD)
-    if done.returncode not in (0, 1) or not done.stdout.strip():
-        raise SystemExit(f"lockstep_hops: cfstack fly failed: {done.stderr.strip()[-400:]}")
+    try:
+        timing = json.loads(done.stdout)["timing"]
+    except (ValueError, KeyError):
+        raise SystemExit(f"lockstep_hops: cfstack fly gave no summary (exit {done.returncode}): "
+                         f"{done.stderr.strip()[-400:]}") from None
     stamps = {}
     for role in ("groundstation", "emulator"):
         files = list(folder.glob(f"stamps{index}.{role}.*.json"))
@@ -141,7 +144,7 @@ def fly(mode: str, folder: Path, index: int, skip: bool) -> dict:
             raise SystemExit(f"lockstep_hops: expected one {role} stamp file, found {len(files)}")
         stamps[role] = {kind: {int(k): v for k, v in by_tick.items()}
                         for kind, by_tick in json.loads(files[0].read_text()).items()}
-    return {"timing": json.loads(done.stdout)["timing"], **stamps}
+    return {"timing": timing, **stamps}
 
 
 def quartiles_us(values: list[float]) -> tuple[float, float, float]:
@@ -155,6 +158,8 @@ def cycle(flown: dict) -> dict:
     sent, taken, blocked_at = gs["ack_sent"], gs["record_taken"], gs.get("blocked_at", {})
     handled, published = emu["ack_handled"], emu["published"]
     ticks = sorted(k for k in sent if k >= WARM_UP_TICKS and k in taken and k in handled)
+    if not ticks:
+        raise SystemExit(f"lockstep_hops: no tick after the first {WARM_UP_TICKS} has stamps from both processes")
     # n: 2 when the emulator mostly published tick k + 1 before it handled the ack of tick k (lookahead)
     ahead = sum(published.get(k + 1, float("inf")) < handled[k] for k in ticks) / len(ticks)
     n = 2 if ahead > 0.5 else 1
