@@ -211,7 +211,7 @@ def main() -> int:
     with TemporaryDirectory() as tmp:
         folder = Path(tmp)
         (folder / "sitecustomize.py").write_text(SITECUSTOMIZE)
-        print(f"lockstep cycle of a {args.mode} circle (cfstack fly, this tree), {args.flights} flight(s)"
+        print(f"lockstep cycle of the {args.mode} circle (cfstack fly, this tree), {args.flights} flight(s)"
               + (", each also without the bookkeeping after the ack" if args.without_bookkeeping else ""))
         for i in range(args.flights):
             for skip in arms if i % 2 == 0 else arms[::-1]:  # interleaved: the machine's load drifts
