@@ -32,12 +32,11 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
-from bench_paths import NEUTRAL_CWD
+from loop_bench import cfstack  # this folder: `cfstack ... --json` in a child process
 
 STAMPS_ENV = "CFSTACK_HOPS_STAMPS"  # the prefix of the stamp files each process writes
 SKIP_ENV = "CFSTACK_HOPS_WITHOUT_BOOKKEEPING"
@@ -130,14 +129,8 @@ def fly(mode: str, folder: Path, index: int, skip: bool) -> dict:
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(folder), env.get("PYTHONPATH")]))
     if skip:
         env[SKIP_ENV] = "1"
-    done = subprocess.run([sys.executable, "-m", "cfstack", "fly", "--trajectory", "circle", "--mode", mode,
-                           "--log", str(folder / f"log{index}"), "--json"],
-                          capture_output=True, text=True, env=env, cwd=NEUTRAL_CWD)
-    try:
-        timing = json.loads(done.stdout)["timing"]
-    except (ValueError, KeyError):
-        raise SystemExit(f"lockstep_hops: cfstack fly gave no summary (exit {done.returncode}): "
-                         f"{done.stderr.strip()[-400:]}") from None
+    timing = cfstack("fly", "--trajectory", "circle", "--mode", mode, "--log", str(folder / f"log{index}"),
+                     env=env)["timing"]
     stamps = {}
     for role in ("groundstation", "emulator"):
         files = list(folder.glob(f"stamps{index}.{role}.*.json"))
