@@ -2,15 +2,17 @@
 
 Takes in: nothing (seeded synthetic 1 m/s circles from tests/estimator/synthetic.py, crazyflie + vicon).
 Gives out: a table on stdout: median over interleaved repeats of the mean thread CPU microseconds per add_imu,
-per add_mocap, per estimate() and per flight-loop tick, for the baseline, the candidate's Python twin and
-the candidate, their ratios, how far the baseline's final estimates differ from the candidate's (in units of
-the candidate's own sigma), and whether the twins' and the compiled kernels' final estimates have the same bits.
+per add_mocap, per estimate() and per flight-loop tick, for the baseline, the candidate's Python twin, the
+candidate on its Python timeline and the candidate, their ratios, how far the baseline's final estimates
+differ from the candidate's (in units of the candidate's own sigma), and whether the twins' final estimates
+and the candidate's have the same bits.
 
 Baseline: estimator/eskf.py (and those of BASELINE_MODULES the commit has) as of commit BASELINE_COMMIT
 (before the per-sample speed work; --baseline-commit), read with `git show` and loaded as package
 `bench_baseline`; candidate: the working tree's estimator.eskf with its propagation as the ground station
-runs it (compiled kernels when estimator/_eskf_kernels.c was built); py twin: the same filter on the Python
-twins of its kernels (estimator/eskf_kernels.py), i.e. what the compiled kernels save. All
+runs it (compiled kernels and timeline when estimator/_eskf_kernels.c was built); py twin: the same filter all
+in Python (estimator/eskf_timeline.py on estimator/eskf_kernels.py's twins), i.e. what compiling saves;
+py tl: the Python timeline on the compiled kernels (the candidate before the timeline was compiled). All
 get the same messages in the same order, fed as the ground station's lockstep loop does:
   moments  - 2 ms ticks: the tick's messages, then one estimate() (one IMU sample per tick);
   attitude - 10 ms ticks: the tick's messages (5 IMU samples, 1 mocap frame), then one estimate().
@@ -48,7 +50,7 @@ from git_baseline import baseline_modules  # noqa: E402 (benchmarks/, beside thi
 from synthetic import Flight, LinkFaults, simulate  # noqa: E402
 
 import estimator.eskf as eskf  # noqa: E402
-from estimator import eskf_kernels  # noqa: E402
+from estimator import eskf_kernels, eskf_timeline  # noqa: E402
 from estimator.eskf import ErrorStateKF  # noqa: E402
 from estimator.sensor_spec import SensorSpec  # noqa: E402
 from link.messages import ImuSample  # noqa: E402
@@ -142,16 +144,16 @@ KERNELS = ("propagate", "predict_covariance", "update_covariance", "reset_covari
 
 @contextlib.contextmanager
 def python_twins():
-    """The working tree's filter on the Python twins of all its kernels (estimator/eskf_kernels.py), for the
-    calls inside the block."""
-    saved = {name: getattr(eskf, name) for name in KERNELS}
+    """The Python timeline (estimator/eskf_timeline.py) on the Python twins of all its kernels
+    (estimator/eskf_kernels.py), for the calls inside the block."""
+    saved = {name: getattr(eskf_timeline, name) for name in KERNELS}
     for name in KERNELS:
-        setattr(eskf, name, getattr(eskf_kernels, f"{name}_python"))
+        setattr(eskf_timeline, name, getattr(eskf_kernels, f"{name}_python"))
     try:
         yield
     finally:
         for name, kernel in saved.items():
-            setattr(eskf, name, kernel)
+            setattr(eskf_timeline, name, kernel)
 
 
 def difference_in_sigma(a, b) -> float:
@@ -165,9 +167,11 @@ def _estimate_bytes(e) -> bytes:
                                                       e.attitude_wxyz, e.covariance))
 
 
-def build_filter(cls, vehicle, room):
+def build_filter(cls, vehicle, room, timeline: type | None = None):
     """The filter told the simulated noise exactly, through whichever constructor its commit has (the
-    sensor spec replaced the (vehicle, room) pair)."""
+    sensor spec replaced the (vehicle, room) pair); on `timeline` if given (the working tree's alone)."""
+    if timeline is not None:
+        return cls(SensorSpec.matching_simulation(vehicle, room), vehicle.imu.rate_hz, timeline=timeline)
     if next(iter(inspect.signature(cls).parameters)) == "sensors":
         return cls(SensorSpec.matching_simulation(vehicle, room), vehicle.imu.rate_hz)
     return cls(vehicle, room)
@@ -182,16 +186,16 @@ def main(argv: list[str] | None = None) -> None:
     vehicle, room = load_vehicle("crazyflie"), load_mocap_room("vicon")
     scratch = tempfile.TemporaryDirectory()  # the baseline's sources, for as long as the run lasts
     baseline = load_baseline(args.baseline_commit, Path(scratch.name))
-    # candidate: as the ground station runs it (the compiled kernels when they were built); py twin: the
-    # same filter on estimator/eskf_kernels.py's Python twins, i.e. what the compiled kernels save
-    filters = {"candidate": (ErrorStateKF, False), "py twin": (ErrorStateKF, True)}
+    # (class, on the Python twins, timeline): the module docstring says what each row is
+    filters = {"candidate": (ErrorStateKF, False, None), "py twin": (ErrorStateKF, True, eskf_timeline.Timeline),
+               "py tl": (ErrorStateKF, False, eskf_timeline.Timeline)}
     if baseline:
-        filters["baseline"] = (baseline, False)
+        filters["baseline"] = (baseline, False, None)
     overhead_ns = clock_overhead_ns()
     print(f"estimator bench: {args.seconds:.0f} s synthetic 1 m/s circle per case, IMU {vehicle.imu.rate_hz:.0f} Hz, "
           f"mocap {room.rate_hz:.0f} Hz; median of {args.repeats} interleaved runs, thread CPU us per call "
           f"(clock overhead {1e-3 * overhead_ns:.2f} us subtracted; baseline = {args.baseline_commit[:9]}; "
-          f"candidate kernels: {'compiled' if eskf_kernels.COMPILED else 'Python twins (not built)'})")
+          f"candidate kernels and timeline: {'compiled' if eskf.CompiledTimeline else 'Python twins (not built)'})")
     header = f"{'mode / case':40s} {'filter':10s}" + "".join(f"{k:>11s}" for k in COLUMNS)
     print(header)
     flights = {label: simulate(Flight(duration_s=args.seconds), vehicle.imu, room, np.random.default_rng(7), faults)
@@ -202,15 +206,15 @@ def main(argv: list[str] | None = None) -> None:
             results: dict[str, list[dict[str, float]]] = {name: [] for name in filters}
             finals = {}
             for _ in range(args.repeats):
-                for name, (cls, twins) in filters.items():
+                for name, (cls, twins, timeline) in filters.items():
                     gc.collect()
                     with python_twins() if twins else contextlib.nullcontext():
-                        per_call, finals[name] = fly_ticks(build_filter(cls, vehicle, room), run.events, tick_s,
-                                                           overhead_ns)
+                        per_call, finals[name] = fly_ticks(build_filter(cls, vehicle, room, timeline), run.events,
+                                                           tick_s, overhead_ns)
                     results[name].append(per_call)
             medians = {name: {k: statistics.median(r[k] for r in runs) for k in COLUMNS}
                        for name, runs in results.items()}
-            for name in ("baseline", "py twin", "candidate"):
+            for name in ("baseline", "py twin", "py tl", "candidate"):
                 if name in medians:
                     print(f"{mode + ', ' + label:40s} {name:10s}"
                           + "".join(f"{medians[name][k]:11.1f}" for k in COLUMNS))
@@ -221,10 +225,11 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{'':40s} {'speed-up':10s}{ratio}   CPU per simulated s {per_sim_s['baseline']:.1f} -> "
                       f"{per_sim_s['candidate']:.1f} ms; final estimates differ by "
                       f"{difference_in_sigma(finals['candidate'], finals['baseline']):.1e} sigma")
-            twin = "".join(f"{medians['py twin'][k] / medians['candidate'][k]:10.2f}x" for k in COLUMNS)
-            same = "the same bits" if _estimate_bytes(finals["py twin"]) == _estimate_bytes(finals["candidate"]) \
-                else "DIFFERENT bits"
-            print(f"{'':40s} {'py/cand':10s}{twin}   final estimates of the twins and the compiled: {same}")
+            for twin in ("py twin", "py tl"):
+                ratios = "".join(f"{medians[twin][k] / medians['candidate'][k]:10.2f}x" for k in COLUMNS)
+                same = "the same bits" if _estimate_bytes(finals[twin]) == _estimate_bytes(finals["candidate"]) \
+                    else "DIFFERENT bits"
+                print(f"{'':40s} {twin + '/cand':10s}{ratios}   final estimates of {twin} and the candidate: {same}")
 
 
 if __name__ == "__main__":

@@ -113,6 +113,38 @@ static int put_transition(PyObject *F_obj, PyObject *index_obj, const double v[N
     return ok ? 0 : -1;
 }
 
+/* The nominal step over dt into x1 and, given v (else NULL), F's 48 transition values: eskf_kernels.propagate.
+   -1 (ValueError set) if the attitude became the zero quaternion. */
+static int propagate_core(const double x[N_STATE], const double f0[3], const double w0[3], const double f1[3],
+                          const double w1[3], double dt, double g, double x1[N_STATE], double v[N_TRANSITION]) {
+    double px = x[0], py = x[1], pz = x[2], vx = x[3], vy = x[4], vz = x[5];
+    double bax = x[10], bay = x[11], baz = x[12], bgx = x[13], bgy = x[14], bgz = x[15];
+    double w[3] = {0.5 * (w0[0] + w1[0]) - bgx, 0.5 * (w0[1] + w1[1]) - bgy, 0.5 * (w0[2] + w1[2]) - bgz};
+    double q0[4] = {x[6], x[7], x[8], x[9]};
+    double r0[9], r1[9], dq[4], q1[4], a0[3], a1[3];
+    quat_to_rows(q0, r0);
+    quat_exp(w[0] * dt, w[1] * dt, w[2] * dt, dq);
+    quat_multiply(q0, dq, q1);
+    if (quat_normalize_positive_w(q1) < 0) return -1;
+    rotate(r0, f0[0] - bax, f0[1] - bay, f0[2] - baz, a0);
+    quat_to_rows(q1, r1);
+    rotate(r1, f1[0] - bax, f1[1] - bay, f1[2] - baz, a1);
+    double ax = 0.5 * (a0[0] + a1[0]);
+    double ay = 0.5 * (a0[1] + a1[1]);
+    double az = 0.5 * (a0[2] + a1[2]) - g;
+    double half_dt2 = 0.5 * dt * dt;
+    double out[N_STATE] = {
+        px + vx * dt + ax * half_dt2, py + vy * dt + ay * half_dt2, pz + vz * dt + az * half_dt2,
+        vx + ax * dt, vy + ay * dt, vz + az * dt, q1[0], q1[1], q1[2], q1[3], bax, bay, baz, bgx, bgy, bgz,
+    };
+    memcpy(x1, out, sizeof(out));
+    if (v != NULL) {
+        double f[3] = {0.5 * (f0[0] + f1[0]) - bax, 0.5 * (f0[1] + f1[1]) - bay, 0.5 * (f0[2] + f1[2]) - baz};
+        transition_values(r0, f, w, dt, v);
+    }
+    return 0;
+}
+
 /* propagate(x, f0, w0, f1, w1, dt, g, F, index) -> x1: eskf_kernels.propagate */
 static PyObject *propagate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
@@ -125,33 +157,10 @@ static PyObject *propagate(PyObject *self, PyObject *const *args, Py_ssize_t nar
     double dt = PyFloat_AsDouble(args[5]);
     double g = PyFloat_AsDouble(args[6]);
     if (PyErr_Occurred()) return NULL;
-
-    double px = x[0], py = x[1], pz = x[2], vx = x[3], vy = x[4], vz = x[5];
-    double bax = x[10], bay = x[11], baz = x[12], bgx = x[13], bgy = x[14], bgz = x[15];
-    double w[3] = {0.5 * (w0[0] + w1[0]) - bgx, 0.5 * (w0[1] + w1[1]) - bgy, 0.5 * (w0[2] + w1[2]) - bgz};
-    double q0[4] = {x[6], x[7], x[8], x[9]};
-    double r0[9], r1[9], dq[4], q1[4], a0[3], a1[3];
-    quat_to_rows(q0, r0);
-    quat_exp(w[0] * dt, w[1] * dt, w[2] * dt, dq);
-    quat_multiply(q0, dq, q1);
-    if (quat_normalize_positive_w(q1) < 0) return NULL;
-    rotate(r0, f0[0] - bax, f0[1] - bay, f0[2] - baz, a0);
-    quat_to_rows(q1, r1);
-    rotate(r1, f1[0] - bax, f1[1] - bay, f1[2] - baz, a1);
-    double ax = 0.5 * (a0[0] + a1[0]);
-    double ay = 0.5 * (a0[1] + a1[1]);
-    double az = 0.5 * (a0[2] + a1[2]) - g;
-    double half_dt2 = 0.5 * dt * dt;
-    double x1[N_STATE] = {
-        px + vx * dt + ax * half_dt2, py + vy * dt + ay * half_dt2, pz + vz * dt + az * half_dt2,
-        vx + ax * dt, vy + ay * dt, vz + az * dt, q1[0], q1[1], q1[2], q1[3], bax, bay, baz, bgx, bgy, bgz,
-    };
-    if (args[7] != Py_None) {
-        double f[3] = {0.5 * (f0[0] + f1[0]) - bax, 0.5 * (f0[1] + f1[1]) - bay, 0.5 * (f0[2] + f1[2]) - baz};
-        double v[N_TRANSITION];
-        transition_values(r0, f, w, dt, v);
-        if (put_transition(args[7], args[8], v) < 0) return NULL;
-    }
+    double x1[N_STATE], v[N_TRANSITION];
+    int with_F = args[7] != Py_None;
+    if (propagate_core(x, f0, w0, f1, w1, dt, g, x1, with_F ? v : NULL) < 0) return NULL;
+    if (with_F && put_transition(args[7], args[8], v) < 0) return NULL;
     return float_tuple(x1, N_STATE);
 }
 
@@ -253,34 +262,14 @@ static int cholesky(const double *S, double *L) {
     return 1;
 }
 
-/* update_covariance(P, z, r, index, P_out, dx_out) -> d2 (NaN: S not positive definite, outputs untouched) */
-static PyObject *update_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    (void)self;
-    if (check_nargs("update_covariance", nargs, 6) < 0) return NULL;
-    double z[N_MEAS], r[N_MEAS], index_values[N_MEAS];
-    int sel[N_MEAS];
-    if (read_floats(args[1], z, N_MEAS, "z") < 0 || read_floats(args[2], r, N_MEAS, "r") < 0
-        || read_floats(args[3], index_values, N_MEAS, "index") < 0)
-        return NULL;
-    for (int m = 0; m < N_MEAS; m++) {
-        sel[m] = (int)index_values[m];
-        if (sel[m] < 0 || sel[m] >= N_ERR || (double)sel[m] != index_values[m]) {
-            PyErr_SetString(PyExc_ValueError, "index: six state indices in 0..14");
-            return NULL;
-        }
-    }
-    static const MatrixArg spec[3] = {{0, SQUARE, 0, "P"}, {4, SQUARE, 1, "P_out"}, {5, N_ERR, 1, "dx_out"}};
-    Py_buffer v[3];
-    if (get_matrices(args, spec, 3, v) < 0) return NULL;
-    const double *P = v[0].buf;
-    double *P_out = v[1].buf, *dx = v[2].buf;
+/* The Joseph-form update: P_out, dx and d^2 (returned; NaN when S is not positive definite, outputs
+   untouched). sel: the six measured states (H). */
+static double update_core(const double *P, const double z[N_MEAS], const double r[N_MEAS], const int sel[N_MEAS],
+                          double *P_out, double *dx) {
     double S[N_MEAS * N_MEAS], L[N_MEAS * N_MEAS];
     for (int m = 0; m < N_MEAS; m++)
         for (int n = 0; n < N_MEAS; n++) S[m * N_MEAS + n] = P[sel[m] * N_ERR + sel[n]] + (m == n ? r[m] : 0.0);
-    if (!cholesky(S, L)) {
-        release_all(v, 3);
-        return PyFloat_FromDouble(NAN);
-    }
+    if (!cholesky(S, L)) return NAN;
     /* Solve S X = B, B = [(P H')' | z] (6 x 16): forward W = L^-1 B, then back X = L'^-1 W */
     enum { NB = N_ERR + 1 };
     double W[N_MEAS][NB], X[N_MEAS][NB];
@@ -325,22 +314,35 @@ static PyObject *update_covariance(PyObject *self, PyObject *const *args, Py_ssi
             P_out[i * N_ERR + j] = acc + krk;
         }
     mirror_upper(P_out);
+    return d2;
+}
+
+/* update_covariance(P, z, r, index, P_out, dx_out) -> d2 (NaN: S not positive definite, outputs untouched) */
+static PyObject *update_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (check_nargs("update_covariance", nargs, 6) < 0) return NULL;
+    double z[N_MEAS], r[N_MEAS], index_values[N_MEAS];
+    int sel[N_MEAS];
+    if (read_floats(args[1], z, N_MEAS, "z") < 0 || read_floats(args[2], r, N_MEAS, "r") < 0
+        || read_floats(args[3], index_values, N_MEAS, "index") < 0)
+        return NULL;
+    for (int m = 0; m < N_MEAS; m++) {
+        sel[m] = (int)index_values[m];
+        if (sel[m] < 0 || sel[m] >= N_ERR || (double)sel[m] != index_values[m]) {
+            PyErr_SetString(PyExc_ValueError, "index: six state indices in 0..14");
+            return NULL;
+        }
+    }
+    static const MatrixArg spec[3] = {{0, SQUARE, 0, "P"}, {4, SQUARE, 1, "P_out"}, {5, N_ERR, 1, "dx_out"}};
+    Py_buffer v[3];
+    if (get_matrices(args, spec, 3, v) < 0) return NULL;
+    double d2 = update_core(v[0].buf, z, r, sel, v[1].buf, v[2].buf);
     release_all(v, 3);
     return PyFloat_FromDouble(d2);
 }
 
-/* reset_covariance(P, dtheta, out) -> None: out = G P G', G = I but G_theta = I - [dtheta/2]x (rows and
-   columns 6..8) */
-static PyObject *reset_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    (void)self;
-    if (check_nargs("reset_covariance", nargs, 3) < 0) return NULL;
-    double dtheta[3];
-    if (read_floats(args[1], dtheta, 3, "dtheta") < 0) return NULL;
-    static const MatrixArg spec[2] = {{0, SQUARE, 0, "P"}, {2, SQUARE, 1, "out"}};
-    Py_buffer v[2];
-    if (get_matrices(args, spec, 2, v) < 0) return NULL;
-    const double *P = v[0].buf;
-    double *out = v[1].buf;
+/* out = G P G', G = I but G_theta = I - [dtheta/2]x (rows and columns 6..8) */
+static void reset_core(const double *P, const double dtheta[3], double *out) {
     double hx = 0.5 * dtheta[0], hy = 0.5 * dtheta[1], hz = 0.5 * dtheta[2];
     double G[3][3] = {{1.0, hz, -hy}, {-hz, 1.0, hx}, {hy, -hx, 1.0}};
     double C[N_ERR * N_ERR]; /* G P: rows 6..8 mixed, the others P's */
@@ -363,8 +365,32 @@ static PyObject *reset_covariance(PyObject *self, PyObject *const *args, Py_ssiz
             out[i * N_ERR + j] = acc;
         }
     mirror_upper(out);
+}
+
+/* reset_covariance(P, dtheta, out) -> None: reset_core */
+static PyObject *reset_covariance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (check_nargs("reset_covariance", nargs, 3) < 0) return NULL;
+    double dtheta[3];
+    if (read_floats(args[1], dtheta, 3, "dtheta") < 0) return NULL;
+    static const MatrixArg spec[2] = {{0, SQUARE, 0, "P"}, {2, SQUARE, 1, "out"}};
+    Py_buffer v[2];
+    if (get_matrices(args, spec, 2, v) < 0) return NULL;
+    reset_core(v[0].buf, dtheta, v[1].buf);
     release_all(v, 2);
     Py_RETURN_NONE;
+}
+
+/* out = A B (15x15); out may be A or B */
+static void multiply_core(const double *A, const double *B, double *out) {
+    double product[N_ERR * N_ERR];
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = 0; j < N_ERR; j++) {
+            double acc = A[i * N_ERR] * B[j];
+            for (int k = 1; k < N_ERR; k++) acc = acc + A[i * N_ERR + k] * B[k * N_ERR + j];
+            product[i * N_ERR + j] = acc;
+        }
+    memcpy(out, product, sizeof(product));
 }
 
 /* multiply(A, B, out) -> None: out = A B (15x15) */
@@ -374,18 +400,12 @@ static PyObject *multiply(PyObject *self, PyObject *const *args, Py_ssize_t narg
     static const MatrixArg spec[3] = {{0, SQUARE, 0, "A"}, {1, SQUARE, 0, "B"}, {2, SQUARE, 1, "out"}};
     Py_buffer v[3];
     if (get_matrices(args, spec, 3, v) < 0) return NULL;
-    const double *A = v[0].buf, *B = v[1].buf;
-    double product[N_ERR * N_ERR]; /* out may be A or B */
-    for (int i = 0; i < N_ERR; i++)
-        for (int j = 0; j < N_ERR; j++) {
-            double acc = A[i * N_ERR] * B[j];
-            for (int k = 1; k < N_ERR; k++) acc = acc + A[i * N_ERR + k] * B[k * N_ERR + j];
-            product[i * N_ERR + j] = acc;
-        }
-    memcpy(v[2].buf, product, sizeof(product));
+    multiply_core(v[0].buf, v[1].buf, v[2].buf);
     release_all(v, 3);
     Py_RETURN_NONE;
 }
+
+#include "_eskf_timeline.h" /* the Timeline type (estimator.eskf_timeline's compiled twin), on the cores above */
 
 static PyMethodDef methods[] = {
     {"propagate", (PyCFunction)(void (*)(void))propagate, METH_FASTCALL,
@@ -408,5 +428,11 @@ static struct PyModuleDef module = {
 
 PyMODINIT_FUNC PyInit__eskf_kernels(void) {
     if (read_module_float("model.frames", "SMALL_ANGLE_RAD", &small_angle_rad) < 0) return NULL;
-    return PyModule_Create(&module);
+    PyObject *created = PyModule_Create(&module);
+    if (created == NULL) return NULL;
+    if (add_timeline_type(created) < 0) {
+        Py_DECREF(created);
+        return NULL;
+    }
+    return created;
 }

@@ -23,8 +23,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from synthetic import Flight, LinkFaults, simulate  # noqa: E402
 
 import estimator.eskf as eskf  # noqa: E402
-from estimator import eskf_kernels  # noqa: E402
-from estimator.eskf import _F_INDEX, MOCAP_STATES, N_ERROR, ErrorStateKF  # noqa: E402
+from estimator import (
+    eskf_kernels,  # noqa: E402
+    eskf_timeline,  # noqa: E402
+)
+from estimator.eskf import ErrorStateKF  # noqa: E402
+from estimator.eskf_timeline import F_INDEX as _F_INDEX  # noqa: E402
+from estimator.eskf_timeline import MOCAP_STATES, N_ERROR, Timeline  # noqa: E402
 from estimator.sensor_spec import SensorSpec  # noqa: E402
 from link.messages import ImuSample  # noqa: E402
 from model.frames import SMALL_ANGLE_RAD, attitude_error, quat_normalize_positive_w  # noqa: E402
@@ -65,7 +70,7 @@ def test_covariance_prediction_is_filterpys_to_rounding_and_exactly_symmetric():
         kf = KalmanFilter(dim_x=N_ERROR, dim_z=6)
         kf.x, kf.P, kf.F, kf.Q = np.zeros((N_ERROR, 1)), P, F, Q
         kf.predict()
-        ours = ErrorStateKF._predict(P, (F, Q))
+        ours = Timeline._predict(P, (F, Q))
         assert _close(ours, kf.P, 1e-14)
         assert ours.tobytes() == ours.T.tobytes()  # filterpy's F P F' + Q by BLAS is not, in general
         assert not np.shares_memory(ours, P)  # a new array: the stored P of the node before is kept
@@ -88,10 +93,10 @@ def test_update_is_filterpys_to_rounding():
         P, _, _ = _random_transition(rng)
         z = rng.normal(scale=0.01, size=6)
         kf = KalmanFilter(dim_x=N_ERROR, dim_z=6)
-        kf.x, kf.P, kf.R = np.zeros((N_ERROR, 1)), P, ours._R
+        kf.x, kf.P, kf.R = np.zeros((N_ERROR, 1)), P, np.diag(ours.config.r_diag)
         kf.update(z.reshape(6, 1), H=_H())
         P_post, dx = np.empty((N_ERROR, N_ERROR)), np.empty(N_ERROR)
-        d2 = eskf_kernels.update_covariance(P, tuple(z), ours._r_diag, MOCAP_STATES, P_post, dx)
+        d2 = eskf_kernels.update_covariance(P, tuple(z), ours.config.r_diag, MOCAP_STATES, P_post, dx)
         assert _close(P_post, kf.P, 1e-11)
         assert _close(dx, kf.x[:, 0], 1e-11)
         assert d2 == pytest.approx(float(kf.y[:, 0] @ kf.SI @ kf.y[:, 0]), rel=1e-11)
@@ -103,9 +108,9 @@ def test_update_refuses_a_covariance_that_is_not_positive_definite():
     P = np.eye(N_ERROR)
     P[0, 0] = -1.0  # H P H' + R has a negative eigenvalue
     out, dx = np.full((N_ERROR, N_ERROR), 7.0), np.full(N_ERROR, 7.0)
-    assert math.isnan(eskf_kernels.update_covariance(P, (0.0,) * 6, ours._r_diag, MOCAP_STATES, out, dx))
+    assert math.isnan(eskf_kernels.update_covariance(P, (0.0,) * 6, ours.config.r_diag, MOCAP_STATES, out, dx))
     assert (out == 7.0).all() and (dx == 7.0).all()  # outputs untouched
-    assert math.isnan(eskf_kernels.update_covariance_python(P, (0.0,) * 6, ours._r_diag, MOCAP_STATES, out, dx))
+    assert math.isnan(eskf_kernels.update_covariance_python(P, (0.0,) * 6, ours.config.r_diag, MOCAP_STATES, out, dx))
 
 
 def test_reset_is_the_jacobian_product_to_rounding():
@@ -135,7 +140,7 @@ def test_chained_predictions_stay_close_to_filterpys_over_a_flight_length():
         _, F, Q = _random_transition(rng)
         kf.F, kf.Q = F, Q
         kf.predict()
-        ours = ErrorStateKF._predict(ours, (F, Q))
+        ours = Timeline._predict(ours, (F, Q))
     assert _close(ours, kf.P, 1e-12)
 
 
@@ -144,7 +149,7 @@ def test_compiled_covariance_kernels_are_the_python_twins_bit_for_bit():
     """Random covariances, transitions, residuals and attitude corrections; also non-symmetric inputs (the
     kernels read every entry they use, so the twins must agree on those too)."""
     rng = np.random.default_rng(23)
-    r = _mocap_filter()._r_diag
+    r = _mocap_filter().config.r_diag
     c, py = eskf_kernels._compiled, eskf_kernels
     for trial in range(2000):
         P, F, Q = _random_transition(rng)
@@ -264,10 +269,11 @@ def test_compiled_propagation_refuses_bad_arguments_with_one_error():
         compiled(x, v, v, v, v, 0.002)
 
 
-def _filtered(run) -> list[bytes]:
-    """Every estimate of a filter fed the run's messages in arrival order, as bytes."""
+def _filtered(run, timeline: type | None = None) -> list[bytes]:
+    """Every estimate of a filter (on the given timeline class, default: the filter's) fed the run's messages in
+    arrival order, as bytes."""
     vehicle, room = load_vehicle("crazyflie"), load_mocap_room("vicon")
-    kf = ErrorStateKF(SensorSpec.matching_simulation(vehicle, room), vehicle.imu.rate_hz)
+    kf = ErrorStateKF(SensorSpec.matching_simulation(vehicle, room), vehicle.imu.rate_hz, timeline=timeline)
     out = []
     for _, msg in run.events:
         if isinstance(msg, ImuSample):
@@ -292,16 +298,16 @@ def _faulty_run():
 @needs_compiled
 def test_a_filtered_flight_is_the_same_with_either_twin(monkeypatch):
     run = _faulty_run()
-    compiled = _filtered(run)
+    compiled = _filtered(run, Timeline)
     for name in ("propagate", "predict_covariance", "update_covariance", "reset_covariance", "multiply"):
-        monkeypatch.setattr(eskf, name, getattr(eskf_kernels, f"{name}_python"))
-    assert _filtered(run) == compiled
+        monkeypatch.setattr(eskf_timeline, name, getattr(eskf_kernels, f"{name}_python"))
+    assert _filtered(run, Timeline) == compiled
     assert len(compiled) > 1500
 
 
-class _BlasFilter(ErrorStateKF):
-    """The filter as it was before the fixed-order kernels: filterpy's predict and update (numpy, BLAS) and
-    the reset G P G' symmetrised - the reference the kernels must agree with to rounding."""
+class _BlasTimeline(Timeline):
+    """The filter's timeline as it was before the fixed-order kernels: filterpy's predict and update (numpy,
+    BLAS) and the reset G P G' symmetrised - the reference the kernels must agree with to rounding."""
 
     @staticmethod
     def _predict(P, transition):
@@ -312,7 +318,7 @@ class _BlasFilter(ErrorStateKF):
         dtheta = attitude_error(x[6:10], node.attitude)
         z = np.array((*(np.array(node.position) - x[0:3]), *dtheta)).reshape(6, 1)
         kf = KalmanFilter(dim_x=N_ERROR, dim_z=6)
-        kf.x, kf.P, kf.R = np.zeros((N_ERROR, 1)), P, self._R
+        kf.x, kf.P, kf.R = np.zeros((N_ERROR, 1)), P, np.diag(self.c.r_diag)
         kf.update(z, H=_H())
         self._posterior = kf.x[:, 0].copy(), kf.P.copy()
         return float(kf.y[:, 0] @ kf.SI @ kf.y[:, 0])
@@ -333,7 +339,8 @@ def test_a_filtered_flight_agrees_with_the_blas_filter_to_rounding():
     run = _faulty_run()
     vehicle, room = load_vehicle("crazyflie"), load_mocap_room("vicon")
     spec = SensorSpec.matching_simulation(vehicle, room)
-    ours, blas = ErrorStateKF(spec, vehicle.imu.rate_hz), _BlasFilter(spec, vehicle.imu.rate_hz)
+    ours = ErrorStateKF(spec, vehicle.imu.rate_hz)
+    blas = ErrorStateKF(spec, vehicle.imu.rate_hz, timeline=_BlasTimeline)
     compared = asymmetric_blas = 0
     for _, msg in run.events:
         if isinstance(msg, ImuSample):

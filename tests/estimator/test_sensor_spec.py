@@ -31,8 +31,8 @@ def test_filter_assumptions_differ_from_the_emulated_room() -> None:
     """The emulated mocap room is simulated with its own figures; the filter is not handed them."""
     spec, room = load_sensor_spec(), load_mocap_room("vicon")
     kf = ErrorStateKF(spec, load_vehicle("cf21").imu.rate_hz)
-    assert kf._R[3, 3] == pytest.approx(spec.mocap_attitude_sigma_rad**2)
-    assert kf._R[3, 3] != pytest.approx(room.attitude_noise_rad**2)
+    assert kf.config.r_diag[3] == pytest.approx(spec.mocap_attitude_sigma_rad**2)
+    assert kf.config.r_diag[3] != pytest.approx(room.attitude_noise_rad**2)
 
 
 def test_matching_simulation_copies_the_simulated_noise() -> None:
