@@ -11,8 +11,8 @@ transition (F, Q) in place of the twin's tuples and arrays. tests/estimator/test
 bits over whole filtered flights with late, reordered, lost, duplicate, stale, invalid and outlier samples.
 
 Why: the twin's bookkeeping in Python cost more per tick than the kernels it calls (estimator.eskf_timeline's
-docstring). Nodes are allocated one by one (5.4 kB each: P, F and Q) and recycled through a free list; the
-buffer holds pointers, so an insertion moves pointers, not nodes. */
+docstring). Nodes are allocated one by one (5.7 kB each, P, F and Q most of it) and recycled through a free
+list; the buffer holds pointers, so an insertion moves pointers, not nodes. */
 
 enum { KIND_IMU = 0, KIND_MOCAP = 1 };
 enum { ST_NEW, ST_ACCEPTED, ST_REJECTED, ST_REINIT, ST_INIT };
@@ -479,8 +479,10 @@ static int queue_node(TimelineObject *tl, Node *node) {
     return 0;
 }
 
+static int started(const TimelineObject *tl) { return tl->n > 0 && tl->nodes[0]->has_signal; }
+
 static int require_started(const TimelineObject *tl, const char *method) {
-    if (tl->n > 0 && tl->nodes[0]->has_signal) return 0;
+    if (started(tl)) return 0;
     PyErr_Format(PyExc_RuntimeError, "Timeline.%s: the timeline has not started (no IMU sample yet)", method);
     return -1;
 }
@@ -525,45 +527,131 @@ static PyObject *tl_count(TimelineObject *tl, PyObject *counter) {
     Py_RETURN_NONE;
 }
 
+/* the twin's add_imu on a started timeline: -1 with the error set */
+static int add_imu_values(TimelineObject *tl, double t, const double f[3], const double w[3]) {
+    Node *node = node_new(tl, t, KIND_IMU);
+    if (node == NULL) return -1;
+    memcpy(node->f, f, 3 * sizeof(double));
+    memcpy(node->w, w, 3 * sizeof(double));
+    node->has_signal = 1;
+    if ((t > tl->nodes[tl->n - 1]->t ? append_imu(tl, node) : insert_imu(tl, node)) < 0) return -1;
+    trim(tl);
+    return 0;
+}
+
+/* the twin's add_mocap on a started timeline: 1 accepted (or held), 0 not, -1 with the error set */
+static int add_mocap_values(TimelineObject *tl, double t, const double pos[3], const double att[4]) {
+    if (t < tl->nodes[0]->t || holds_mocap_at(tl, t)) {
+        tl->counts[t < tl->nodes[0]->t ? C_STALE_MOCAP : C_DUPLICATE_MOCAP]++;
+        return 0;
+    }
+    Node *node = node_new(tl, t, KIND_MOCAP);
+    if (node == NULL) return -1;
+    memcpy(node->pos, pos, 3 * sizeof(double));
+    memcpy(node->att, att, 4 * sizeof(double));
+    if (t > tl->nodes[tl->n - 1]->t) { /* queued: decided when the IMU stream reaches its sample time */
+        if (queue_node(tl, node) < 0) {
+            node_free(tl, node);
+            return -1;
+        }
+        return 1;
+    }
+    Py_ssize_t i = bisect_right(tl, t);
+    if (insert_node(tl, i, node) < 0) {
+        node_free(tl, node);
+        return -1;
+    }
+    if (replay_from(tl, i) < 0) return -1;
+    return node->status == ST_ACCEPTED || node->status == ST_REINIT;
+}
+
 static PyObject *tl_add_imu(TimelineObject *tl, PyObject *const *args, Py_ssize_t nargs) {
     if (check_nargs("add_imu", nargs, 3) < 0 || require_nodes(tl, "add_imu") < 0) return NULL;
     double t = PyFloat_AsDouble(args[0]), f[3], w[3];
     if ((t == -1.0 && PyErr_Occurred()) || read_floats(args[1], f, 3, "f") < 0 || read_floats(args[2], w, 3, "w") < 0)
         return NULL;
-    Node *node = node_new(tl, t, KIND_IMU);
-    if (node == NULL) return NULL;
-    memcpy(node->f, f, sizeof(f));
-    memcpy(node->w, w, sizeof(w));
-    node->has_signal = 1;
-    if ((t > tl->nodes[tl->n - 1]->t ? append_imu(tl, node) : insert_imu(tl, node)) < 0) return NULL;
-    trim(tl);
+    if (add_imu_values(tl, t, f, w) < 0) return NULL;
     Py_RETURN_NONE;
 }
 
 static PyObject *tl_add_mocap(TimelineObject *tl, PyObject *const *args, Py_ssize_t nargs) {
     if (check_nargs("add_mocap", nargs, 3) < 0 || require_started(tl, "add_mocap") < 0) return NULL;
-    Node *node = mocap_node(tl, args);
-    if (node == NULL) return NULL;
-    double t = node->t;
-    if (t < tl->nodes[0]->t || holds_mocap_at(tl, t)) {
-        tl->counts[t < tl->nodes[0]->t ? C_STALE_MOCAP : C_DUPLICATE_MOCAP]++;
-        node_free(tl, node);
+    double t = PyFloat_AsDouble(args[0]), pos[3], att[4];
+    if ((t == -1.0 && PyErr_Occurred()) || read_floats(args[1], pos, 3, "position") < 0
+        || read_floats(args[2], att, 4, "attitude") < 0)
+        return NULL;
+    int accepted = add_mocap_values(tl, t, pos, att);
+    return accepted < 0 ? NULL : PyBool_FromLong(accepted);
+}
+
+/* ------------------------------------------------------------------ samples as they arrive (the twin's
+   add_imu_sample, add_mocap_pose): their checks, then the above */
+
+enum { ADD_TAKEN, ADD_INVALID, ADD_NOT_STARTED }; /* estimator.eskf_timeline.TAKEN, INVALID, NOT_STARTED */
+static PyObject *name_time_s, *name_force, *name_rate, *name_position, *name_attitude; /* interned */
+
+/* obj.name as a double; -1 with the error set */
+static int attr_float(PyObject *obj, PyObject *name, double *out) {
+    PyObject *value = PyObject_GetAttr(obj, name);
+    if (value == NULL) return -1;
+    *out = PyFloat_AsDouble(value);
+    Py_DECREF(value);
+    return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
+}
+
+/* obj.name, a sequence, as n doubles: 1, 0 when it does not hold n items (nothing read), -1 with the error
+   set (a non-number raises, as the twin's float()) */
+static int attr_floats(PyObject *obj, PyObject *name, double *out, Py_ssize_t n) {
+    PyObject *value = PyObject_GetAttr(obj, name);
+    if (value == NULL) return -1;
+    PyObject *fast = PySequence_Fast(value, "a sample's vector");
+    Py_DECREF(value);
+    if (fast == NULL) return -1;
+    int status = PySequence_Fast_GET_SIZE(fast) == n;
+    PyObject **items = PySequence_Fast_ITEMS(fast);
+    for (Py_ssize_t i = 0; status == 1 && i < n; i++) {
+        out[i] = PyFloat_AsDouble(items[i]);
+        if (out[i] == -1.0 && PyErr_Occurred()) status = -1;
+    }
+    Py_DECREF(fast);
+    return status;
+}
+
+static int all_finite(const double *v, int n) {
+    for (int i = 0; i < n; i++)
+        if (!isfinite(v[i])) return 0;
+    return 1;
+}
+
+static PyObject *tl_add_imu_sample(TimelineObject *tl, PyObject *sample) {
+    double v[7]; /* t, f, w */
+    int f_ok, w_ok;
+    if (attr_float(sample, name_time_s, &v[0]) < 0 || (f_ok = attr_floats(sample, name_force, &v[1], 3)) < 0
+        || (w_ok = attr_floats(sample, name_rate, &v[4], 3)) < 0)
+        return NULL;
+    if (!(f_ok && w_ok) || !all_finite(v, 7)) {
+        tl->counts[C_INVALID_IMU]++;
+        return PyLong_FromLong(ADD_INVALID);
+    }
+    if (!started(tl)) return PyLong_FromLong(ADD_NOT_STARTED);
+    if (add_imu_values(tl, v[0], &v[1], &v[4]) < 0) return NULL;
+    return PyLong_FromLong(ADD_TAKEN);
+}
+
+static PyObject *tl_add_mocap_pose(TimelineObject *tl, PyObject *pose) {
+    double v[8]; /* t, position, attitude */
+    int pos_ok, att_ok;
+    if ((pos_ok = attr_floats(pose, name_position, &v[1], 3)) < 0
+        || (att_ok = attr_floats(pose, name_attitude, &v[4], 4)) < 0 || attr_float(pose, name_time_s, &v[0]) < 0)
+        return NULL;
+    if (!(pos_ok && att_ok) || !all_finite(v, 8) || !(v[4] != 0.0 || v[5] != 0.0 || v[6] != 0.0 || v[7] != 0.0)) {
+        tl->counts[C_INVALID_MOCAP]++;
         Py_RETURN_FALSE;
     }
-    if (t > tl->nodes[tl->n - 1]->t) { /* queued: decided when the IMU stream reaches its sample time */
-        if (queue_node(tl, node) < 0) {
-            node_free(tl, node);
-            return NULL;
-        }
-        Py_RETURN_TRUE;
-    }
-    Py_ssize_t i = bisect_right(tl, t);
-    if (insert_node(tl, i, node) < 0) {
-        node_free(tl, node);
-        return NULL;
-    }
-    if (replay_from(tl, i) < 0) return NULL;
-    return PyBool_FromLong(node->status == ST_ACCEPTED || node->status == ST_REINIT);
+    if (!started(tl)) Py_RETURN_NONE;
+    if (quat_normalize_positive_w(&v[4]) < 0) return NULL;
+    int accepted = add_mocap_values(tl, v[0], &v[1], &v[4]);
+    return accepted < 0 ? NULL : PyBool_FromLong(accepted);
 }
 
 static PyObject *tl_queue_mocap(TimelineObject *tl, PyObject *const *args, Py_ssize_t nargs) {
@@ -641,9 +729,7 @@ static PyObject *tl_health_values(TimelineObject *tl, PyObject *Py_UNUSED(ignore
 
 static PyObject *tl_get_empty(TimelineObject *tl, void *Py_UNUSED(closure)) { return PyBool_FromLong(tl->n == 0); }
 
-static PyObject *tl_get_started(TimelineObject *tl, void *Py_UNUSED(closure)) {
-    return PyBool_FromLong(tl->n > 0 && tl->nodes[0]->has_signal);
-}
+static PyObject *tl_get_started(TimelineObject *tl, void *Py_UNUSED(closure)) { return PyBool_FromLong(started(tl)); }
 
 /* ------------------------------------------------------------------ making one */
 
@@ -673,7 +759,8 @@ static int read_twin_constants(TimelineObject *tl) {
     Py_DECREF(mod);
     int status = -1;
     double values[N_TRANSITION];
-    if (index != NULL && chunk != NULL && counters != NULL && read_floats(index, values, N_TRANSITION, "F_INDEX") == 0) {
+    if (index != NULL && chunk != NULL && counters != NULL
+        && read_floats(index, values, N_TRANSITION, "F_INDEX") == 0) {
         tl->trim_chunk = PyLong_AsSsize_t(chunk);
         status = 0;
         for (int i = 0; i < N_TRANSITION; i++) {
@@ -732,6 +819,8 @@ static PyMethodDef tl_methods[] = {
     {"count", (PyCFunction)tl_count, METH_O, "count(counter)"},
     {"add_imu", (PyCFunction)(void (*)(void))tl_add_imu, METH_FASTCALL, "add_imu(t, f, w)"},
     {"add_mocap", (PyCFunction)(void (*)(void))tl_add_mocap, METH_FASTCALL, "add_mocap(t, position, attitude) -> bool"},
+    {"add_imu_sample", (PyCFunction)tl_add_imu_sample, METH_O, "add_imu_sample(sample) -> TAKEN, INVALID or NOT_STARTED"},
+    {"add_mocap_pose", (PyCFunction)tl_add_mocap_pose, METH_O, "add_mocap_pose(pose) -> bool, or None before the start"},
     {"queue_mocap", (PyCFunction)(void (*)(void))tl_queue_mocap, METH_FASTCALL, "queue_mocap(t, position, attitude)"},
     {"newest", (PyCFunction)tl_newest, METH_O, "newest(P_out) -> (t, x, w)"},
     {"predict", (PyCFunction)(void (*)(void))tl_predict, METH_FASTCALL, "predict(t, P_out) -> (x, w) or None"},
@@ -765,7 +854,14 @@ static int add_timeline_type(PyObject *module) {
     if (linalg == NULL) return -1;
     lin_alg_error = PyObject_GetAttrString(linalg, "LinAlgError");
     Py_DECREF(linalg);
-    if (lin_alg_error == NULL || PyType_Ready(&TimelineType) < 0) return -1;
+    name_time_s = PyUnicode_InternFromString("time_s");
+    name_force = PyUnicode_InternFromString("specific_force_flu_mps2");
+    name_rate = PyUnicode_InternFromString("rate_flu_radps");
+    name_position = PyUnicode_InternFromString("position_enu_m");
+    name_attitude = PyUnicode_InternFromString("attitude_wxyz");
+    if (lin_alg_error == NULL || name_time_s == NULL || name_force == NULL || name_rate == NULL
+        || name_position == NULL || name_attitude == NULL || PyType_Ready(&TimelineType) < 0)
+        return -1;
     Py_INCREF(&TimelineType);
     if (PyModule_AddObject(module, "Timeline", (PyObject *)&TimelineType) < 0) {
         Py_DECREF(&TimelineType);

@@ -87,12 +87,13 @@ from scipy.special import gammaincinv
 from estimator import eskf_timeline
 from estimator.eskf_timeline import (
     COUNTERS,
-    INVALID_IMU,
-    INVALID_MOCAP,
     MOCAP_STATES,
     N_ERROR,
+    NOT_STARTED,
     STALE_IMU,
     TimelineConfig,
+    pose_valid,
+    pose_values,
 )
 from estimator.sensor_spec import SensorSpec
 from link.messages import ImuSample, MocapPose
@@ -199,15 +200,6 @@ class Estimate:
     health: EstimatorHealth
 
 
-def _finite(values) -> bool:
-    return all(map(math.isfinite, values))
-
-
-def _pose_valid(pose: MocapPose) -> bool:
-    values = (pose.time_s, *pose.position_enu_m, *pose.attitude_wxyz)
-    return len(values) == 8 and _finite(values) and any(pose.attitude_wxyz)
-
-
 class ErrorStateKF:
     """The estimator. Feed add_imu / add_mocap in arrival order; read estimate() / predict_to().
 
@@ -251,7 +243,7 @@ class ErrorStateKF:
 
     def initialise(self, pose: MocapPose) -> None:
         """Start (or restart) the filter at `pose`, assuming the vehicle is at rest with zero biases."""
-        if not _pose_valid(pose):
+        if not pose_valid(pose):
             raise UserError(f"MocapPose at t={pose.time_s!r}: position/attitude must be finite and the "
                             "quaternion non-zero to initialise the estimator")
         self._estimate = None
@@ -262,33 +254,27 @@ class ErrorStateKF:
     def add_imu(self, sample: ImuSample) -> None:
         """Propagate to the sample's time (or insert it in the buffer and replay if it is late)."""
         self._estimate = None
-        t = float(sample.time_s)
-        f = tuple(map(float, sample.specific_force_flu_mps2))
-        w = tuple(map(float, sample.rate_flu_radps))
-        if not (len(f) == 3 and len(w) == 3 and _finite((t, *f, *w))):
-            self._timeline.count(INVALID_IMU)
-            return
-        if not self._timeline.started and not self._start_at_imu(t):
-            return  # no pose at or before this sample yet: nothing to propagate from
-        self._timeline.add_imu(t, f, w)
+        if self._timeline.add_imu_sample(sample) == NOT_STARTED:  # checked: valid, the first to place
+            t = float(sample.time_s)
+            if self._start_at_imu(t):
+                self._timeline.add_imu(t, tuple(map(float, sample.specific_force_flu_mps2)),
+                                       tuple(map(float, sample.rate_flu_radps)))
 
     def add_mocap(self, pose: MocapPose) -> bool:
         """Fuse a pose at its sample time. True if accepted (or used to re-initialise)."""
         self._estimate = None
-        if not _pose_valid(pose):
-            self._timeline.count(INVALID_MOCAP)
-            return False
-        if not self._timeline.started:
-            # No IMU yet: keep the poses; the first IMU sample starts the filter at the newest pose no
-            # later than itself (the downlink may lag the mocap by more than a mocap period).
-            bisect.insort(self._waiting_poses, pose, key=lambda p: p.time_s)
-            horizon = self._waiting_poses[-1].time_s - self.params.buffer_length_s
-            self._waiting_poses = [p for p in self._waiting_poses if p.time_s >= horizon]
-            if self._timeline.empty:
-                self.initialise(pose)
-                self._waiting_poses = [pose]
-            return True
-        return self._timeline.add_mocap(float(pose.time_s), *_pose_values(pose))
+        accepted = self._timeline.add_mocap_pose(pose)
+        if accepted is not None:
+            return accepted
+        # No IMU yet: keep the poses; the first IMU sample starts the filter at the newest pose no later
+        # than itself (the downlink may lag the mocap by more than a mocap period).
+        bisect.insort(self._waiting_poses, pose, key=lambda p: p.time_s)
+        horizon = self._waiting_poses[-1].time_s - self.params.buffer_length_s
+        self._waiting_poses = [p for p in self._waiting_poses if p.time_s >= horizon]
+        if self._timeline.empty:
+            self.initialise(pose)
+            self._waiting_poses = [pose]
+        return True
 
     def estimate(self) -> Estimate:
         """The state after the newest sample (all NaN and healthy=False before the first pose).
@@ -343,7 +329,7 @@ class ErrorStateKF:
         self.initialise(earlier[-1])
         self._waiting_poses = []
         for pose in later:
-            self._timeline.queue_mocap(float(pose.time_s), *_pose_values(pose))
+            self._timeline.queue_mocap(float(pose.time_s), *pose_values(pose))
         return True
 
     # ------------------------------------------------------------------ output
@@ -376,11 +362,6 @@ class ErrorStateKF:
             health=self.health(),
         )
 
-
-def _pose_values(pose: MocapPose) -> tuple[tuple, tuple]:
-    """A valid pose's position and attitude as floats, the attitude normalised with w >= 0."""
-    return (tuple(map(float, pose.position_enu_m)),
-            quat_normalize_positive_w(tuple(map(float, pose.attitude_wxyz))))
 
 
 def _frozen(cls: type, fields: dict):

@@ -4,8 +4,9 @@ equations and the rules). In Python here; estimator/_eskf_timeline.c is its comp
 
 Takes in: a TimelineConfig (the filter's numbers: gravity, IMU period, sub-step and buffer lengths, gate,
 re-initialisation rules, R's diagonal, the initial covariance's diagonal, the process noise densities), and
-already validated samples as plain floats: IMU samples (time s on the vehicle clock, specific force FLU
-m/s^2, rate FLU rad/s) and mocap frames (sample time s, position ENU m, unit attitude wxyz with w >= 0).
+samples: link.messages.ImuSample and MocapPose as they arrive (add_imu_sample, add_mocap_pose: checked here,
+an invalid one counted and dropped), or already checked as plain floats (time s on the vehicle clock;
+specific force FLU m/s^2 and rate FLU rad/s; position ENU m and unit attitude wxyz with w >= 0).
 Gives out: the newest node's time, nominal state (16 floats: p ENU m, v ENU m/s, q wxyz, b_a FLU m/s^2,
 b_g FLU rad/s) and IMU rate, its covariance written into a caller's (15, 15) float64 array; the same one
 step ahead (predict); whether a frame was accepted; the counters of COUNTERS.
@@ -32,6 +33,7 @@ from estimator.eskf_kernels import (
     reset_covariance,
     update_covariance,
 )
+from link.messages import ImuSample, MocapPose
 from model.frames import attitude_error, quat_exp, quat_multiply, quat_normalize_positive_w
 
 N_ERROR = 15
@@ -42,6 +44,8 @@ COUNTERS = ("accepted_mocap", "rejected_outliers", "reinitialisations", "duplica
             "invalid_mocap", "imu_gaps", "lost_imu", "reordered_imu", "stale_imu", "duplicate_imu", "invalid_imu")
 (ACCEPTED_MOCAP, REJECTED_OUTLIERS, REINITIALISATIONS, DUPLICATE_MOCAP, STALE_MOCAP, INVALID_MOCAP, IMU_GAPS,
  LOST_IMU, REORDERED_IMU, STALE_IMU, DUPLICATE_IMU, INVALID_IMU) = range(len(COUNTERS))
+# What add_imu_sample did with a sample (the compiled twin returns the same numbers).
+TAKEN, INVALID, NOT_STARTED = range(3)
 
 
 def _flat(cells) -> np.ndarray:
@@ -144,6 +148,31 @@ class Timeline:
     def count(self, counter: int) -> None:
         """Add one to COUNTERS[counter] (for what the caller drops before the timeline sees it)."""
         self._count[counter] += 1
+
+    def add_imu_sample(self, sample: ImuSample) -> int:
+        """Check and add an IMU sample: INVALID (counted) if a number is not finite or a vector not of 3,
+        NOT_STARTED (nothing done) before the first sample has a pose to start from (the caller's to
+        find), else TAKEN (added by add_imu)."""
+        f, w = sample.specific_force_flu_mps2, sample.rate_flu_radps
+        if len(f) == 3 and len(w) == 3:
+            t, f, w = float(sample.time_s), tuple(map(float, f)), tuple(map(float, w))
+        if len(f) != 3 or len(w) != 3 or not _finite((t, *f, *w)):
+            self._count[INVALID_IMU] += 1
+            return INVALID
+        if not self.started:
+            return NOT_STARTED
+        self.add_imu(t, f, w)
+        return TAKEN
+
+    def add_mocap_pose(self, pose: MocapPose) -> bool | None:
+        """Check and add a mocap frame: False if invalid (counted: see pose_valid), None (nothing done) when
+        the timeline has not started, else add_mocap's answer."""
+        if not pose_valid(pose):
+            self._count[INVALID_MOCAP] += 1
+            return False
+        if not self.started:
+            return None
+        return self.add_mocap(float(pose.time_s), *pose_values(pose))
 
     def add_imu(self, t: float, f: tuple, w: tuple) -> None:
         """A sample (started timelines only): appended, or inserted and replayed when late, or dropped."""
@@ -490,6 +519,22 @@ class Timeline:
         Q.flags.writeable = False  # shared by every interval of this length
         self._q_cache[dt] = Q
         return Q
+
+
+def _finite(values) -> bool:
+    return all(map(math.isfinite, values))
+
+
+def pose_valid(pose: MocapPose) -> bool:
+    """A position of 3 and an attitude of 4 finite numbers, the attitude not all zero."""
+    return (len(pose.position_enu_m) == 3 and len(pose.attitude_wxyz) == 4
+            and _finite((pose.time_s, *pose.position_enu_m, *pose.attitude_wxyz)) and any(pose.attitude_wxyz))
+
+
+def pose_values(pose: MocapPose) -> tuple[tuple, tuple]:
+    """A valid pose's position and attitude as floats, the attitude normalised with w >= 0."""
+    return (tuple(map(float, pose.position_enu_m)),
+            quat_normalize_positive_w(tuple(map(float, pose.attitude_wxyz))))
 
 
 def _lerp(a: tuple, b: tuple, s: float) -> tuple:

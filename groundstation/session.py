@@ -128,7 +128,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
             clock_box["clock"] = clock
             # a log block's IMU is every n-th sample of the vehicle's: each carries that sample's noise
             estimator = ErrorStateKF(subsampled(opts.sensor_spec, vehicle.imu.rate_hz, imu_rate_hz), imu_rate_hz)
-            missing = [name for name, compiled in (("the estimator's propagation", eskf_kernels.COMPILED),
+            missing = [name for name, compiled in (("the estimator's kernels and timeline", eskf_kernels.COMPILED),
                                                    ("the latency compensator's steps", compensation_kernel.COMPILED),
                                                    ("the controller's report law", controller_kernel.COMPILED))
                        if not compiled]

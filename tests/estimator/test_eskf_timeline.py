@@ -22,7 +22,7 @@ from synthetic import Flight, LinkFaults, simulate  # noqa: E402
 
 from estimator import eskf  # noqa: E402
 from estimator.eskf import ErrorStateKF, EstimatorHealth  # noqa: E402
-from estimator.eskf_timeline import COUNTERS, N_ERROR, Timeline  # noqa: E402
+from estimator.eskf_timeline import COUNTERS, INVALID, N_ERROR, NOT_STARTED, TAKEN, Timeline  # noqa: E402
 from estimator.sensor_spec import SensorSpec  # noqa: E402
 from link.messages import ImuSample, MocapPose  # noqa: E402
 from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle  # noqa: E402
@@ -167,3 +167,35 @@ def test_compiled_timeline_refuses_bad_calls_with_one_error():
         timeline.count(len(COUNTERS))
     with pytest.raises(AttributeError):
         eskf.CompiledTimeline(object())  # not a TimelineConfig
+
+
+@pytest.mark.parametrize("twin", ["compiled", "python"])
+def test_samples_as_they_arrive_are_checked_the_same_by_both_twins(twin):
+    """add_imu_sample / add_mocap_pose: a vector of the wrong length or a number not finite is invalid
+    (counted, nothing else done), a sample that is not one raises, and before the first IMU sample they
+    say so instead of adding."""
+    if twin == "compiled" and eskf.CompiledTimeline is None:
+        pytest.skip("estimator/_eskf_kernels.c was not built: no compiled twin")
+    timeline = (eskf.CompiledTimeline if twin == "compiled" else Timeline)(ErrorStateKF(SPEC, 500.0).config)
+    hover = ImuSample(0.002, (0.0, 0.0, GRAVITY_MPS2), (0.0, 0.0, 0.0))
+    pose = MocapPose(0.003, 1, (0.5, -0.2, 1.0), (1.0, 0.0, 0.0, 0.0))
+    assert timeline.add_imu_sample(hover) == NOT_STARTED and timeline.add_mocap_pose(pose) is None
+    timeline.initialise(0.0, (0.5, -0.2, 1.0, 0.0, 0.0, 0.0, 1.0) + (0.0,) * 9)
+    assert timeline.add_imu_sample(hover) == NOT_STARTED  # the first sample is placed by the caller (add_imu)
+    timeline.add_imu(hover.time_s, hover.specific_force_flu_mps2, hover.rate_flu_radps)
+    assert timeline.started and timeline.add_imu_sample(dataclasses.replace(hover, time_s=0.0025)) == TAKEN
+    assert timeline.add_mocap_pose(pose) is True  # newer than the newest sample: held, decided later
+    bad_imu = [dataclasses.replace(hover, time_s=0.0026, specific_force_flu_mps2=(0.0, GRAVITY_MPS2)),
+               dataclasses.replace(hover, time_s=0.0026, rate_flu_radps=(0.0, math.inf, 0.0)),
+               dataclasses.replace(hover, time_s=math.nan)]
+    assert [timeline.add_imu_sample(s) for s in bad_imu] == [INVALID] * 3
+    bad_poses = [dataclasses.replace(pose, time_s=0.001, attitude_wxyz=(0.0, 0.0, 0.0, 0.0)),
+                 dataclasses.replace(pose, time_s=0.001, attitude_wxyz=(1.0, 0.0, 0.0)),
+                 dataclasses.replace(pose, time_s=0.001, position_enu_m=(0.5, math.nan, 1.0))]
+    assert [timeline.add_mocap_pose(p) for p in bad_poses] == [False] * 3
+    counts = dict(zip(COUNTERS, timeline.health_values()[3], strict=True))
+    assert counts["invalid_imu"] == 3 and counts["invalid_mocap"] == 3
+    with pytest.raises(TypeError):
+        timeline.add_imu_sample(dataclasses.replace(hover, time_s=0.0026, rate_flu_radps=(None, 0.0, 0.0)))
+    with pytest.raises(AttributeError):
+        timeline.add_mocap_pose(hover)  # not a pose
