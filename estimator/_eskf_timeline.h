@@ -51,6 +51,7 @@ typedef struct {
     long consecutive_rejections;
     long long counts[N_COUNTERS];
     double post_dx[N_ERR], post_P[SQUARE]; /* the last innovation's posterior, for inject */
+    PyObject *counter_names; /* estimator.eskf_timeline.COUNTERS (a tuple of str), the health_values dict's keys */
 } TimelineObject;
 
 static const int MOCAP_SEL[N_MEAS] = {0, 1, 2, 6, 7, 8};
@@ -709,15 +710,20 @@ static PyObject *tl_predict(TimelineObject *tl, PyObject *const *args, Py_ssize_
 }
 
 static PyObject *tl_health_values(TimelineObject *tl, PyObject *Py_UNUSED(ignored)) {
-    PyObject *counts = PyTuple_New(N_COUNTERS);
+    if (tl->counter_names == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "Timeline.health_values: the timeline was not made (__init__ failed)");
+        return NULL;
+    }
+    PyObject *counts = PyDict_New();
     if (counts == NULL) return NULL;
     for (int i = 0; i < N_COUNTERS; i++) {
         PyObject *value = PyLong_FromLongLong(tl->counts[i]);
-        if (value == NULL) {
+        int failed = value == NULL || PyDict_SetItem(counts, PyTuple_GET_ITEM(tl->counter_names, i), value) < 0;
+        Py_XDECREF(value);
+        if (failed) {
             Py_DECREF(counts);
             return NULL;
         }
-        PyTuple_SET_ITEM(counts, i, value);
     }
     PyObject *newest = tl->n ? PyFloat_FromDouble(tl->nodes[tl->n - 1]->t) : Py_NewRef(Py_None);
     if (newest == NULL) {
@@ -749,7 +755,8 @@ static int config_floats(PyObject *config, const char *name, double *out, Py_ssi
     return status;
 }
 
-/* F_INDEX, TRIM_CHUNK and COUNTERS' length from estimator.eskf_timeline */
+/* F_INDEX, TRIM_CHUNK and COUNTERS (its length checked: the names are health_values' keys) from
+   estimator.eskf_timeline */
 static int read_twin_constants(TimelineObject *tl) {
     PyObject *mod = PyImport_ImportModule("estimator.eskf_timeline");
     if (mod == NULL) return -1;
@@ -767,7 +774,7 @@ static int read_twin_constants(TimelineObject *tl) {
             tl->f_index[i] = (int)values[i];
             if (tl->f_index[i] < 0 || tl->f_index[i] >= SQUARE || values[i] != tl->f_index[i]) status = -1;
         }
-        if (status < 0 || tl->trim_chunk < 1 || PyObject_Length(counters) != N_COUNTERS) {
+        if (status < 0 || tl->trim_chunk < 1 || !PyTuple_Check(counters) || PyTuple_GET_SIZE(counters) != N_COUNTERS) {
             if (!PyErr_Occurred())
                 PyErr_SetString(PyExc_ValueError, "estimator.eskf_timeline's F_INDEX, TRIM_CHUNK or COUNTERS "
                                                   "do not match the compiled timeline");
@@ -776,7 +783,11 @@ static int read_twin_constants(TimelineObject *tl) {
     }
     Py_XDECREF(index);
     Py_XDECREF(chunk);
-    Py_XDECREF(counters);
+    if (status == 0) {
+        Py_XSETREF(tl->counter_names, counters);
+    } else {
+        Py_XDECREF(counters);
+    }
     return status;
 }
 
@@ -811,6 +822,7 @@ static void tl_dealloc(TimelineObject *tl) {
     }
     PyMem_Free(tl->nodes);
     PyMem_Free(tl->pending);
+    Py_XDECREF(tl->counter_names);
     Py_TYPE(tl)->tp_free((PyObject *)tl);
 }
 
@@ -819,8 +831,8 @@ static PyMethodDef tl_methods[] = {
     {"count", (PyCFunction)tl_count, METH_O, "count(counter)"},
     {"add_imu", (PyCFunction)(void (*)(void))tl_add_imu, METH_FASTCALL, "add_imu(t, f, w)"},
     {"add_mocap", (PyCFunction)(void (*)(void))tl_add_mocap, METH_FASTCALL, "add_mocap(t, position, attitude) -> bool"},
-    {"add_imu_sample", (PyCFunction)tl_add_imu_sample, METH_O, "add_imu_sample(sample) -> TAKEN, INVALID or NOT_STARTED"},
-    {"add_mocap_pose", (PyCFunction)tl_add_mocap_pose, METH_O, "add_mocap_pose(pose) -> bool, or None before the start"},
+    {"add_imu_sample", (PyCFunction)tl_add_imu_sample, METH_O, "add_imu_sample(sample) -> TAKEN, INVALID, NOT_STARTED"},
+    {"add_mocap_pose", (PyCFunction)tl_add_mocap_pose, METH_O, "add_mocap_pose(pose) -> bool, None: not started"},
     {"queue_mocap", (PyCFunction)(void (*)(void))tl_queue_mocap, METH_FASTCALL, "queue_mocap(t, position, attitude)"},
     {"newest", (PyCFunction)tl_newest, METH_O, "newest(P_out) -> (t, x, w)"},
     {"predict", (PyCFunction)(void (*)(void))tl_predict, METH_FASTCALL, "predict(t, P_out) -> (x, w) or None"},

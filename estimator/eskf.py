@@ -86,7 +86,6 @@ from scipy.special import gammaincinv
 
 from estimator import eskf_timeline
 from estimator.eskf_timeline import (
-    COUNTERS,
     MOCAP_STATES,
     N_ERROR,
     NOT_STARTED,
@@ -311,10 +310,11 @@ class ErrorStateKF:
         newest_s, last_accepted_s, in_a_row, counts = self._timeline.health_values()
         # A frame from the future (queued until the IMU catches up) must not make the age negative.
         age = math.inf if newest_s is None else max(0.0, newest_s - last_accepted_s)
-        fields = dict(zip(COUNTERS, counts, strict=True))
-        fields.update(initialised=newest_s is not None, mocap_age_s=age, blackout=age > self.params.blackout_s,
-                      consecutive_rejections=in_a_row)
-        return _frozen(EstimatorHealth, fields)
+        counts["initialised"] = newest_s is not None
+        counts["mocap_age_s"] = age
+        counts["blackout"] = age > self.params.blackout_s
+        counts["consecutive_rejections"] = in_a_row
+        return _frozen(EstimatorHealth, counts)
 
     # ------------------------------------------------------------------ before the first IMU sample
 

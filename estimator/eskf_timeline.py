@@ -232,11 +232,12 @@ class Timeline:
         P_out[...] = self._predict(self._covariance_at(last), transition)
         return x, node.w
 
-    def health_values(self) -> tuple[float | None, float, int, tuple]:
-        """(newest node's time or None when empty, newest accepted frame's time, rejections in a row,
-        COUNTERS' values)."""
+    def health_values(self) -> tuple[float | None, float, int, dict]:
+        """(newest node's time or None when empty, newest accepted frame's time, rejections in a row, a new
+        dict of COUNTERS' values by name)."""
         newest_s = self._times[-1] if self._times else None
-        return newest_s, self._last_accepted_s, self._consecutive_rejections, tuple(self._count)
+        counts = dict(zip(COUNTERS, self._count, strict=True))
+        return newest_s, self._last_accepted_s, self._consecutive_rejections, counts
 
     # ------------------------------------------------------------------ timeline bookkeeping
 
