@@ -2,21 +2,24 @@
 by sample time, the filter state after each, rollback and replay. Included by estimator/_eskf_kernels.c (one
 extension module: it runs on that file's kernels) and exported there as estimator._eskf_kernels.Timeline.
 
-Takes in: a TimelineConfig (read once, attribute by attribute), estimator.eskf_timeline.F_INDEX and TRIM_CHUNK
-(read when a timeline is made: one source of truth), and the calls of the Python twin with the same arguments
-(times s, vectors as sequences of floats, the caller's (15, 15) float64 output arrays).
+Takes in: a TimelineConfig (read once, attribute by attribute); estimator.eskf_timeline's F_INDEX,
+MOCAP_STATES, TRIM_CHUNK and COUNTERS (read when a timeline is made: one source of truth); and the twin's
+calls with the same arguments: link.messages.ImuSample and MocapPose objects (add_imu_sample, add_mocap_pose),
+or times (s) and vectors as sequences of floats, and the caller's (15, 15) float64 output arrays.
 Gives out: what the twin's methods give, bit for bit: every step below is the twin's in the same order (the
 kernels are the same C functions the twin calls), each node holding its nominal state, covariance and
 transition (F, Q) in place of the twin's tuples and arrays. tests/estimator/test_eskf_timeline.py checks the
 bits over whole filtered flights with late, reordered, lost, duplicate, stale, invalid and outlier samples.
 
-Why: the twin's bookkeeping in Python cost more per tick than the kernels it calls (estimator.eskf_timeline's
-docstring). Nodes are allocated one by one (5.7 kB each, P, F and Q most of it) and recycled through a free
-list; the buffer holds pointers, so an insertion moves pointers, not nodes. */
+Why: with the kernels compiled, the twin's bookkeeping in Python was most of the estimator's time: 57.1 us of
+CPU per 100 Hz tick (five IMU samples, one frame) against 20.1 us with this file (`benchmarks/estimator_bench.py
+--seconds 4 --repeats 3`, frames in order, one run). Nodes are allocated one by one (5.7 kB each, P, F and Q
+most of it) and recycled through a free list; the buffer holds pointers, so an insertion moves pointers. */
 
 enum { KIND_IMU = 0, KIND_MOCAP = 1 };
 enum { ST_NEW, ST_ACCEPTED, ST_REJECTED, ST_REINIT, ST_INIT };
-/* estimator.eskf_timeline.COUNTERS, same order (checked when a timeline is made) */
+/* estimator.eskf_timeline.COUNTERS, in its order (its length is checked when a timeline is made; its names are
+   health_values' keys, which the tests compare between the twins) */
 enum {
     C_ACCEPTED_MOCAP, C_REJECTED_OUTLIERS, C_REINITIALISATIONS, C_DUPLICATE_MOCAP, C_STALE_MOCAP, C_INVALID_MOCAP,
     C_IMU_GAPS, C_LOST_IMU, C_REORDERED_IMU, C_STALE_IMU, C_DUPLICATE_IMU, C_INVALID_IMU, N_COUNTERS
@@ -40,6 +43,7 @@ typedef struct {
     double r[N_MEAS], p0[N_ERR];
     double accel_psd, gyro_psd, accel_bias_psd, gyro_bias_psd;
     int f_index[N_TRANSITION];
+    int mocap_sel[N_MEAS]; /* the states a mocap frame measures (H), estimator.eskf_timeline.MOCAP_STATES */
     Py_ssize_t trim_chunk;
     Node **nodes;
     Py_ssize_t n, cap;
@@ -54,7 +58,6 @@ typedef struct {
     PyObject *counter_names; /* estimator.eskf_timeline.COUNTERS (a tuple of str), the health_values dict's keys */
 } TimelineObject;
 
-static const int MOCAP_SEL[N_MEAS] = {0, 1, 2, 6, 7, 8};
 static PyObject *lin_alg_error; /* numpy.linalg.LinAlgError, as the twin raises */
 
 /* ------------------------------------------------------------------ nodes and lists */
@@ -271,7 +274,7 @@ static double innovate(TimelineObject *tl, const double *x, const double *P, con
     double dtheta[3];
     attitude_error(&x[6], node->att, dtheta);
     double z[N_MEAS] = {node->pos[0] - x[0], node->pos[1] - x[1], node->pos[2] - x[2], dtheta[0], dtheta[1], dtheta[2]};
-    double d2 = update_core(P, z, tl->r, MOCAP_SEL, tl->post_P, tl->post_dx);
+    double d2 = update_core(P, z, tl->r, tl->mocap_sel, tl->post_P, tl->post_dx);
     if (isnan(d2))
         PyErr_SetString(lin_alg_error, "mocap update: innovation covariance H P H' + R not positive definite");
     return d2;
@@ -755,39 +758,48 @@ static int config_floats(PyObject *config, const char *name, double *out, Py_ssi
     return status;
 }
 
-/* F_INDEX, TRIM_CHUNK and COUNTERS (its length checked: the names are health_values' keys) from
-   estimator.eskf_timeline */
-static int read_twin_constants(TimelineObject *tl) {
-    PyObject *mod = PyImport_ImportModule("estimator.eskf_timeline");
-    if (mod == NULL) return -1;
-    PyObject *index = PyObject_GetAttrString(mod, "F_INDEX");
-    PyObject *chunk = PyObject_GetAttrString(mod, "TRIM_CHUNK");
-    PyObject *counters = PyObject_GetAttrString(mod, "COUNTERS");
-    Py_DECREF(mod);
-    int status = -1;
-    double values[N_TRANSITION];
-    if (index != NULL && chunk != NULL && counters != NULL
-        && read_floats(index, values, N_TRANSITION, "F_INDEX") == 0) {
-        tl->trim_chunk = PyLong_AsSsize_t(chunk);
-        status = 0;
-        for (int i = 0; i < N_TRANSITION; i++) {
-            tl->f_index[i] = (int)values[i];
-            if (tl->f_index[i] < 0 || tl->f_index[i] >= SQUARE || values[i] != tl->f_index[i]) status = -1;
-        }
-        if (status < 0 || tl->trim_chunk < 1 || !PyTuple_Check(counters) || PyTuple_GET_SIZE(counters) != N_COUNTERS) {
-            if (!PyErr_Occurred())
-                PyErr_SetString(PyExc_ValueError, "estimator.eskf_timeline's F_INDEX, TRIM_CHUNK or COUNTERS "
-                                                  "do not match the compiled timeline");
+/* n indices in [0, limit) from module.name into out; -1 with the error set */
+static int read_indices(PyObject *mod, const char *name, int *out, int n, int limit) {
+    PyObject *value = PyObject_GetAttrString(mod, name);
+    if (value == NULL) return -1;
+    double values[N_TRANSITION]; /* the longest: F_INDEX */
+    int status = n <= N_TRANSITION ? read_floats(value, values, n, name) : -1;
+    Py_DECREF(value);
+    for (int i = 0; status == 0 && i < n; i++) {
+        out[i] = (int)values[i];
+        if (out[i] < 0 || out[i] >= limit || values[i] != out[i]) {
+            PyErr_Format(PyExc_ValueError, "estimator.eskf_timeline.%s: index %d out of range", name, i);
             status = -1;
         }
     }
-    Py_XDECREF(index);
-    Py_XDECREF(chunk);
-    if (status == 0) {
-        Py_XSETREF(tl->counter_names, counters);
-    } else {
-        Py_XDECREF(counters);
+    return status;
+}
+
+/* F_INDEX, MOCAP_STATES, TRIM_CHUNK and COUNTERS (its length checked: its names are health_values' keys)
+   from estimator.eskf_timeline */
+static int read_twin_constants(TimelineObject *tl) {
+    PyObject *mod = PyImport_ImportModule("estimator.eskf_timeline");
+    if (mod == NULL) return -1;
+    int status = -1;
+    PyObject *chunk = NULL, *counters = NULL;
+    if (read_indices(mod, "F_INDEX", tl->f_index, N_TRANSITION, SQUARE) == 0
+        && read_indices(mod, "MOCAP_STATES", tl->mocap_sel, N_MEAS, N_ERR) == 0
+        && (chunk = PyObject_GetAttrString(mod, "TRIM_CHUNK")) != NULL
+        && (counters = PyObject_GetAttrString(mod, "COUNTERS")) != NULL) {
+        tl->trim_chunk = PyLong_AsSsize_t(chunk);
+        if (PyErr_Occurred()) {
+            status = -1;
+        } else if (tl->trim_chunk < 1 || !PyTuple_Check(counters) || PyTuple_GET_SIZE(counters) != N_COUNTERS) {
+            PyErr_SetString(PyExc_ValueError, "estimator.eskf_timeline's TRIM_CHUNK or COUNTERS do not match the "
+                                              "compiled timeline");
+        } else {
+            Py_XSETREF(tl->counter_names, Py_NewRef(counters));
+            status = 0;
+        }
     }
+    Py_DECREF(mod);
+    Py_XDECREF(chunk);
+    Py_XDECREF(counters);
     return status;
 }
 
