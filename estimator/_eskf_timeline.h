@@ -11,8 +11,8 @@ kernels are the same C functions the twin calls), each node holding its nominal 
 transition (F, Q) in place of the twin's tuples and arrays. tests/estimator/test_eskf_timeline.py checks the
 bits over whole filtered flights with late, reordered, lost, duplicate, stale, invalid and outlier samples.
 
-Why: with the kernels compiled, the twin's bookkeeping in Python was most of the estimator's time: 57.1 us of
-CPU per 100 Hz tick (five IMU samples, one frame) against 20.1 us with this file (`benchmarks/estimator_bench.py
+Why: with the kernels compiled, the twin's bookkeeping in Python was most of the estimator's time: 57.4 us of
+CPU per 100 Hz tick (five IMU samples, one frame) against 19.9 us with this file (`benchmarks/estimator_bench.py
 --seconds 4 --repeats 3`, frames in order, one run). Nodes are allocated one by one (5.7 kB each, P, F and Q
 most of it) and recycled through a free list; the buffer holds pointers, so an insertion moves pointers. */
 

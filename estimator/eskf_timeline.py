@@ -13,7 +13,7 @@ step ahead (predict); whether a frame was accepted; the counters of COUNTERS.
 
 Why a class of its own with a compiled twin (issue 19): in attitude mode the ground station adds five IMU
 samples and a mocap frame per tick on the lockstep's critical path, and with the kernels compiled this
-bookkeeping was most of the estimator's time: 57.1 us of CPU per 100 Hz tick here, 20.1 us with the compiled
+bookkeeping was most of the estimator's time: 57.4 us of CPU per 100 Hz tick here, 19.9 us with the compiled
 twin (`benchmarks/estimator_bench.py --seconds 4 --repeats 3`, frames in order, one run). The twins give the
 same bits (tests/estimator/test_eskf_timeline.py checks them over whole filtered flights, faults included).
 """
