@@ -594,31 +594,24 @@ static PyObject *tl_add_mocap(TimelineObject *tl, PyObject *const *args, Py_ssiz
 enum { ADD_TAKEN, ADD_INVALID, ADD_NOT_STARTED }; /* estimator.eskf_timeline.TAKEN, INVALID, NOT_STARTED */
 static PyObject *name_time_s, *name_force, *name_rate, *name_position, *name_attitude; /* interned */
 
-/* obj.name as a double; -1 with the error set */
-static int attr_float(PyObject *obj, PyObject *name, double *out) {
+/* obj.name as a list or tuple (PySequence_Fast: a new reference); NULL with the error set */
+static PyObject *attr_sequence(PyObject *obj, PyObject *name) {
     PyObject *value = PyObject_GetAttr(obj, name);
-    if (value == NULL) return -1;
-    *out = PyFloat_AsDouble(value);
-    Py_DECREF(value);
-    return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
-}
-
-/* obj.name, a sequence, as n doubles: 1, 0 when it does not hold n items (nothing read), -1 with the error
-   set (a non-number raises, as the twin's float()) */
-static int attr_floats(PyObject *obj, PyObject *name, double *out, Py_ssize_t n) {
-    PyObject *value = PyObject_GetAttr(obj, name);
-    if (value == NULL) return -1;
+    if (value == NULL) return NULL;
     PyObject *fast = PySequence_Fast(value, "a sample's vector");
     Py_DECREF(value);
-    if (fast == NULL) return -1;
-    int status = PySequence_Fast_GET_SIZE(fast) == n;
+    return fast;
+}
+
+/* the items of a PySequence_Fast as doubles (float() of each: a non-number raises); -1 with the error set */
+static int sequence_floats(PyObject *fast, double *out) {
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(fast);
     PyObject **items = PySequence_Fast_ITEMS(fast);
-    for (Py_ssize_t i = 0; status == 1 && i < n; i++) {
+    for (Py_ssize_t i = 0; i < n; i++) {
         out[i] = PyFloat_AsDouble(items[i]);
-        if (out[i] == -1.0 && PyErr_Occurred()) status = -1;
+        if (out[i] == -1.0 && PyErr_Occurred()) return -1;
     }
-    Py_DECREF(fast);
-    return status;
+    return 0;
 }
 
 static int all_finite(const double *v, int n) {
@@ -627,13 +620,37 @@ static int all_finite(const double *v, int n) {
     return 1;
 }
 
+/* A sample's time and two vectors of sizes n1, n2 (n1 + n2 <= 7) into v (t first), read as the twin reads
+   them: both lengths checked first (1: wrong, nothing converted), then the numbers converted, time first
+   (-1 with the error set: not a number, or no such attribute), then 0 */
+static int read_sample(PyObject *obj, PyObject *name1, Py_ssize_t n1, PyObject *name2, Py_ssize_t n2, double *v) {
+    PyObject *first = attr_sequence(obj, name1);
+    PyObject *second = first == NULL ? NULL : attr_sequence(obj, name2);
+    int status = -1;
+    if (second != NULL) {
+        if (PySequence_Fast_GET_SIZE(first) != n1 || PySequence_Fast_GET_SIZE(second) != n2) {
+            status = 1;
+        } else {
+            PyObject *t = PyObject_GetAttr(obj, name_time_s);
+            if (t != NULL) {
+                v[0] = PyFloat_AsDouble(t);
+                Py_DECREF(t);
+                if (!(v[0] == -1.0 && PyErr_Occurred()) && sequence_floats(first, &v[1]) == 0
+                    && sequence_floats(second, &v[1 + n1]) == 0)
+                    status = 0;
+            }
+        }
+    }
+    Py_XDECREF(first);
+    Py_XDECREF(second);
+    return status;
+}
+
 static PyObject *tl_add_imu_sample(TimelineObject *tl, PyObject *sample) {
     double v[7]; /* t, f, w */
-    int f_ok, w_ok;
-    if (attr_float(sample, name_time_s, &v[0]) < 0 || (f_ok = attr_floats(sample, name_force, &v[1], 3)) < 0
-        || (w_ok = attr_floats(sample, name_rate, &v[4], 3)) < 0)
-        return NULL;
-    if (!(f_ok && w_ok) || !all_finite(v, 7)) {
+    int status = read_sample(sample, name_force, 3, name_rate, 3, v);
+    if (status < 0) return NULL;
+    if (status == 1 || !all_finite(v, 7)) {
         tl->counts[C_INVALID_IMU]++;
         return PyLong_FromLong(ADD_INVALID);
     }
@@ -644,11 +661,9 @@ static PyObject *tl_add_imu_sample(TimelineObject *tl, PyObject *sample) {
 
 static PyObject *tl_add_mocap_pose(TimelineObject *tl, PyObject *pose) {
     double v[8]; /* t, position, attitude */
-    int pos_ok, att_ok;
-    if ((pos_ok = attr_floats(pose, name_position, &v[1], 3)) < 0
-        || (att_ok = attr_floats(pose, name_attitude, &v[4], 4)) < 0 || attr_float(pose, name_time_s, &v[0]) < 0)
-        return NULL;
-    if (!(pos_ok && att_ok) || !all_finite(v, 8) || !(v[4] != 0.0 || v[5] != 0.0 || v[6] != 0.0 || v[7] != 0.0)) {
+    int status = read_sample(pose, name_position, 3, name_attitude, 4, v);
+    if (status < 0) return NULL;
+    if (status == 1 || !all_finite(v, 8) || !(v[4] != 0.0 || v[5] != 0.0 || v[6] != 0.0 || v[7] != 0.0)) {
         tl->counts[C_INVALID_MOCAP]++;
         Py_RETURN_FALSE;
     }

@@ -155,11 +155,10 @@ class Timeline:
         NOT_STARTED (nothing done) before the first sample has a pose to start from (the caller's to
         find), else TAKEN (added by add_imu)."""
         f, w = sample.specific_force_flu_mps2, sample.rate_flu_radps
-        if len(f) == 3 and len(w) == 3:
-            t, f, w = float(sample.time_s), tuple(map(float, f)), tuple(map(float, w))
-        if len(f) != 3 or len(w) != 3 or not _finite((t, *f, *w)):
+        if len(f) != 3 or len(w) != 3 or not _finite((sample.time_s, *f, *w)):  # a non-number raises TypeError
             self._count[INVALID_IMU] += 1
             return INVALID
+        t, f, w = float(sample.time_s), tuple(map(float, f)), tuple(map(float, w))
         if not self.started:
             return NOT_STARTED
         self.add_imu(t, f, w)
@@ -524,6 +523,7 @@ class Timeline:
 
 
 def _finite(values) -> bool:
+    """All finite; math.isfinite reads each as a C double does (PyFloat_AsDouble): as the compiled twin."""
     return all(map(math.isfinite, values))
 
 

@@ -198,5 +198,12 @@ def test_samples_as_they_arrive_are_checked_the_same_by_both_twins(twin):
     assert counts["invalid_imu"] == 3 and counts["invalid_mocap"] == 3
     with pytest.raises(TypeError):
         timeline.add_imu_sample(dataclasses.replace(hover, time_s=0.0026, rate_flu_radps=(None, 0.0, 0.0)))
+    with pytest.raises(TypeError):  # a number as text is not a number to either twin
+        timeline.add_imu_sample(dataclasses.replace(hover, time_s="0.0026"))
+    with pytest.raises(TypeError):
+        timeline.add_mocap_pose(dataclasses.replace(pose, time_s=0.001, position_enu_m=("0.5", 0.0, 1.0)))
+    # the lengths are checked first: a vector of the wrong length is invalid, whatever it holds
+    assert timeline.add_imu_sample(dataclasses.replace(hover, time_s=None, rate_flu_radps=(None,))) == INVALID
+    assert timeline.add_mocap_pose(dataclasses.replace(pose, time_s=None, attitude_wxyz=("1",))) is False
     with pytest.raises(AttributeError):
         timeline.add_mocap_pose(hover)  # not a pose
