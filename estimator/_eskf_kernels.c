@@ -214,15 +214,20 @@ static void mirror_upper(double *m) {
         for (int j = i + 1; j < N_ERR; j++) m[j * N_ERR + i] = m[i * N_ERR + j];
 }
 
+/* out = A B (15x15), each entry summed in index order; out must be neither A nor B */
+static void product(const double *A, const double *B, double *out) {
+    for (int i = 0; i < N_ERR; i++)
+        for (int j = 0; j < N_ERR; j++) {
+            double acc = A[i * N_ERR] * B[j];
+            for (int k = 1; k < N_ERR; k++) acc = acc + A[i * N_ERR + k] * B[k * N_ERR + j];
+            out[i * N_ERR + j] = acc;
+        }
+}
+
 /* out = F P F' + Q */
 static void predict_kernel(const double *P, const double *F, const double *Q, double *out) {
     double M[N_ERR * N_ERR];
-    for (int i = 0; i < N_ERR; i++)
-        for (int j = 0; j < N_ERR; j++) {
-            double acc = F[i * N_ERR] * P[j];
-            for (int k = 1; k < N_ERR; k++) acc = acc + F[i * N_ERR + k] * P[k * N_ERR + j];
-            M[i * N_ERR + j] = acc;
-        }
+    product(F, P, M);
     for (int i = 0; i < N_ERR; i++)
         for (int j = i; j < N_ERR; j++) {
             double acc = M[i * N_ERR] * F[j * N_ERR];
@@ -383,14 +388,9 @@ static PyObject *reset_covariance(PyObject *self, PyObject *const *args, Py_ssiz
 
 /* out = A B (15x15); out may be A or B */
 static void multiply_core(const double *A, const double *B, double *out) {
-    double product[N_ERR * N_ERR];
-    for (int i = 0; i < N_ERR; i++)
-        for (int j = 0; j < N_ERR; j++) {
-            double acc = A[i * N_ERR] * B[j];
-            for (int k = 1; k < N_ERR; k++) acc = acc + A[i * N_ERR + k] * B[k * N_ERR + j];
-            product[i * N_ERR + j] = acc;
-        }
-    memcpy(out, product, sizeof(product));
+    double result[N_ERR * N_ERR];
+    product(A, B, result);
+    memcpy(out, result, sizeof(result));
 }
 
 /* multiply(A, B, out) -> None: out = A B (15x15) */
