@@ -297,6 +297,12 @@ static int inject(TimelineObject *tl, Node *node) {
     return 0;
 }
 
+/* P = diag(p0), the initial covariance (the twin's np.diag(p0_diag)) */
+static void initial_covariance(const TimelineObject *tl, double *P) {
+    memset(P, 0, SQUARE * sizeof(double));
+    for (int i = 0; i < N_ERR; i++) P[i * N_ERR + i] = tl->p0[i];
+}
+
 /* the twin's _reinitialised, into the node's x and P (P holds the prior: its bias blocks are kept) */
 static void reinitialise_at(const TimelineObject *tl, Node *node) {
     double *x = node->x, *P = node->P;
@@ -305,8 +311,7 @@ static void reinitialise_at(const TimelineObject *tl, Node *node) {
     double bias[6][6];
     for (int i = 0; i < 6; i++)
         for (int j = 0; j < 6; j++) bias[i][j] = P[(9 + i) * N_ERR + 9 + j];
-    memset(P, 0, SQUARE * sizeof(double));
-    for (int i = 0; i < N_ERR; i++) P[i * N_ERR + i] = tl->p0[i];
+    initial_covariance(tl, P);
     for (int i = 3; i < 6; i++) P[i * N_ERR + i] = 1.0 * tl->reinit_velocity_var; /* np.eye(3) * var */
     for (int i = 0; i < 6; i++)
         for (int j = 0; j < 6; j++) P[(9 + i) * N_ERR + 9 + j] = bias[i][j];
@@ -460,17 +465,20 @@ static int holds_mocap_at(const TimelineObject *tl, double t) {
     return 0;
 }
 
-/* a mocap node from (t, position, attitude) arguments; NULL with the error set */
-static Node *mocap_node(TimelineObject *tl, PyObject *const *args) {
-    double t = PyFloat_AsDouble(args[0]);
-    if (t == -1.0 && PyErr_Occurred()) return NULL;
-    double pos[3], att[4];
-    if (read_floats(args[1], pos, 3, "position") < 0 || read_floats(args[2], att, 4, "attitude") < 0) return NULL;
+/* a new mocap node at t; NULL with MemoryError */
+static Node *mocap_node(TimelineObject *tl, double t, const double pos[3], const double att[4]) {
     Node *node = node_new(tl, t, KIND_MOCAP);
     if (node == NULL) return NULL;
-    memcpy(node->pos, pos, sizeof(pos));
-    memcpy(node->att, att, sizeof(att));
+    memcpy(node->pos, pos, 3 * sizeof(double));
+    memcpy(node->att, att, 4 * sizeof(double));
     return node;
+}
+
+/* (t, position, attitude) arguments, as add_mocap and queue_mocap take them; -1 with the error set */
+static int read_frame_args(PyObject *const *args, double *t, double pos[3], double att[4]) {
+    *t = PyFloat_AsDouble(args[0]);
+    if (*t == -1.0 && PyErr_Occurred()) return -1;
+    return read_floats(args[1], pos, 3, "position") < 0 || read_floats(args[2], att, 4, "attitude") < 0 ? -1 : 0;
 }
 
 static int queue_node(TimelineObject *tl, Node *node) {
@@ -499,7 +507,6 @@ static int require_nodes(const TimelineObject *tl, const char *method) {
     return -1;
 }
 
-
 static PyObject *tl_initialise(TimelineObject *tl, PyObject *const *args, Py_ssize_t nargs) {
     if (check_nargs("initialise", nargs, 2) < 0) return NULL;
     double t = PyFloat_AsDouble(args[0]), x[N_STATE];
@@ -509,8 +516,7 @@ static PyObject *tl_initialise(TimelineObject *tl, PyObject *const *args, Py_ssi
     if (node == NULL) return NULL;
     node->status = ST_INIT;
     memcpy(node->x, x, sizeof(x));
-    memset(node->P, 0, sizeof(node->P));
-    for (int i = 0; i < N_ERR; i++) node->P[i * N_ERR + i] = tl->p0[i];
+    initial_covariance(tl, node->P);
     node->has_P = 1;
     if (insert_node(tl, 0, node) < 0) {
         node_free(tl, node);
@@ -549,10 +555,8 @@ static int add_mocap_values(TimelineObject *tl, double t, const double pos[3], c
         tl->counts[t < tl->nodes[0]->t ? C_STALE_MOCAP : C_DUPLICATE_MOCAP]++;
         return 0;
     }
-    Node *node = node_new(tl, t, KIND_MOCAP);
+    Node *node = mocap_node(tl, t, pos, att);
     if (node == NULL) return -1;
-    memcpy(node->pos, pos, 3 * sizeof(double));
-    memcpy(node->att, att, 4 * sizeof(double));
     if (t > tl->nodes[tl->n - 1]->t) { /* queued: decided when the IMU stream reaches its sample time */
         if (queue_node(tl, node) < 0) {
             node_free(tl, node);
@@ -579,10 +583,9 @@ static PyObject *tl_add_imu(TimelineObject *tl, PyObject *const *args, Py_ssize_
 }
 
 static PyObject *tl_add_mocap(TimelineObject *tl, PyObject *const *args, Py_ssize_t nargs) {
-    if (check_nargs("add_mocap", nargs, 3) < 0 || require_started(tl, "add_mocap") < 0) return NULL;
-    double t = PyFloat_AsDouble(args[0]), pos[3], att[4];
-    if ((t == -1.0 && PyErr_Occurred()) || read_floats(args[1], pos, 3, "position") < 0
-        || read_floats(args[2], att, 4, "attitude") < 0)
+    double t, pos[3], att[4];
+    if (check_nargs("add_mocap", nargs, 3) < 0 || require_started(tl, "add_mocap") < 0
+        || read_frame_args(args, &t, pos, att) < 0)
         return NULL;
     int accepted = add_mocap_values(tl, t, pos, att);
     return accepted < 0 ? NULL : PyBool_FromLong(accepted);
@@ -674,8 +677,9 @@ static PyObject *tl_add_mocap_pose(TimelineObject *tl, PyObject *pose) {
 }
 
 static PyObject *tl_queue_mocap(TimelineObject *tl, PyObject *const *args, Py_ssize_t nargs) {
-    if (check_nargs("queue_mocap", nargs, 3) < 0) return NULL;
-    Node *node = mocap_node(tl, args);
+    double t, pos[3], att[4];
+    if (check_nargs("queue_mocap", nargs, 3) < 0 || read_frame_args(args, &t, pos, att) < 0) return NULL;
+    Node *node = mocap_node(tl, t, pos, att);
     if (node == NULL) return NULL;
     if (queue_node(tl, node) < 0) {
         node_free(tl, node);
