@@ -98,7 +98,6 @@ from estimator.sensor_spec import SensorSpec
 from link.messages import ImuSample, MocapPose
 from model.config import Params, resolve
 from model.errors import UserError
-from model.frames import quat_normalize_positive_w
 from model.vehicle import GRAVITY_MPS2
 
 try:
@@ -246,9 +245,8 @@ class ErrorStateKF:
             raise UserError(f"MocapPose at t={pose.time_s!r}: position/attitude must be finite and the "
                             "quaternion non-zero to initialise the estimator")
         self._estimate = None
-        x = (*map(float, pose.position_enu_m), 0.0, 0.0, 0.0,
-             *quat_normalize_positive_w(tuple(map(float, pose.attitude_wxyz))), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        self._timeline.initialise(float(pose.time_s), x)
+        position, attitude = pose_values(pose)  # at rest, zero biases
+        self._timeline.initialise(float(pose.time_s), (*position, 0.0, 0.0, 0.0, *attitude, *(0.0,) * 6))
 
     def add_imu(self, sample: ImuSample) -> None:
         """Propagate to the sample's time (or insert it in the buffer and replay if it is late)."""
