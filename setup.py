@@ -25,4 +25,5 @@ setup(ext_modules=[Extension(name, [source], depends=["model/_kernels.h", *HEADE
                                         ("simulator.crazyflie._pid_kernel", "simulator/crazyflie/_pid_kernel.c"),
                                         ("groundstation._compensation_kernel",
                                          "groundstation/_compensation_kernel.c"),
-                                        ("groundstation._controller_kernel", "groundstation/_controller_kernel.c"))])
+                                        ("groundstation._controller_kernel", "groundstation/_controller_kernel.c"),
+                                        ("link.mavlink._frame_kernel", "link/mavlink/_frame_kernel.c"))])

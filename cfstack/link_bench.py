@@ -63,7 +63,8 @@ import numpy as np
 
 from link.endpoint import Endpoint
 from link.keys import DEFAULT_PREFIX, GROUND_STATION_SYSTEM_ID
-from link.mavlink.codec import ActuatorLimits, Codec, measure_codec_costs, sample_messages
+from link.mavlink import frame_kernel
+from link.mavlink.codec import KERNEL_KINDS, ActuatorLimits, Codec, measure_codec_costs, sample_messages
 from link.messages import CommandKind, ImuSample, Message, ThrustMoment, VehicleCommand
 from link.transports import open_transport
 from link.transports.base import free_loopback_port
@@ -81,6 +82,7 @@ DEFAULT_COUNT = 2000  # round trips per path
 DEFAULT_FRAMES = 50_000  # frames per throughput run
 DEFAULT_BLOCKS = 8
 DEFAULT_CODEC_CALLS = 2000  # calls per message type and direction in measure_codec_costs
+KERNEL_MESSAGES = frozenset(kind.__name__ for kind in KERNEL_KINDS)  # what the compiled encoder takes
 QUICK = {"count": 100, "frames": 3000, "blocks": 2, "codec_calls": 200}
 WARMUP_ROUND_TRIPS = 30  # per block, not recorded: first samples after a phase switch are slow
 
@@ -486,6 +488,7 @@ class BenchReport:
     throughput: dict[str, Throughput]
     codec_us: dict[bool, dict[str, tuple[float, float]]]  # signing -> type -> (encode, decode)
     setup: str = ""
+    codec_twin_us: dict[str, tuple[float, float]] = field(default_factory=dict)  # unsigned, the Python encoder
 
     def ratio(self, medium: str, layer: str = "link") -> float:
         """p50 round trip of `medium`'s `layer` over its bare p50."""
@@ -627,6 +630,9 @@ def run_bench(count: int = DEFAULT_COUNT, frames: int = DEFAULT_FRAMES, blocks: 
     for signing in (False, True):
         progress(f"codec costs, signing {'on' if signing else 'off'} ({codec_calls} calls per message type)")
         report.codec_us[signing] = measure_codec_costs(codec_calls, signing=signing)
+    if frame_kernel.COMPILED:  # the compiled encoder's baseline, in the same run: its Python twin
+        progress(f"codec costs, the Python encoder ({codec_calls} calls per message type)")
+        report.codec_twin_us = measure_codec_costs(codec_calls, python_twin=True)
     return report
 
 
@@ -711,15 +717,24 @@ def _throughput_table(report: BenchReport) -> str:
 
 
 def _codec_table(report: BenchReport) -> str:
+    twin = report.codec_twin_us
     lines = [
-        "Codec cost per message, median us (encode = Codec.encode; decode = FrameParser.feed of one datagram)",
-        f"  {'message':<16}{'encode':>8}{'decode':>8}{'signed enc':>12}{'signed dec':>12}",
+        "Codec cost per message, median us (encode = Codec.encode; decode = FrameParser.feed of one datagram)"
+        + ("; py enc = the Python encoder where the compiled one (link.mavlink.frame_kernel) takes the message, "
+           "py/enc its cost over encode's" if twin else "; the compiled encoder was not built"),
+        f"  {'message':<16}{'encode':>8}{'decode':>8}{'signed enc':>12}{'signed dec':>12}"
+        + (f"{'py enc':>8}{'py/enc':>8}" if twin else ""),
     ]
     plain, signed = report.codec_us[False], report.codec_us[True]
     for name, (encode_us, decode_us) in plain.items():
         signed_encode_us, signed_decode_us = signed[name]
-        lines.append(f"  {name:<16}{encode_us:>8.1f}{decode_us:>8.1f}{signed_encode_us:>12.1f}"
-                     f"{signed_decode_us:>12.1f}")
+        line = (f"  {name:<16}{encode_us:>8.1f}{decode_us:>8.1f}{signed_encode_us:>12.1f}"
+                f"{signed_decode_us:>12.1f}")
+        if twin:
+            python_us = twin[name][0]
+            taken = name in KERNEL_MESSAGES
+            line += f"{python_us:>8.1f}{python_us / encode_us:>8.2f}" if taken else f"{'-':>8}{'-':>8}"
+        lines.append(line)
     return "\n".join(lines)
 
 

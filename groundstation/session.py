@@ -41,6 +41,7 @@ from groundstation.tickframe import Displays
 from groundstation.trajectory import Trajectory
 from groundstation.vehicle_link import VehicleLink
 from link.keys import VehicleKeys
+from link.mavlink import frame_kernel
 from link.mavlink.codec import ActuatorLimits
 from link.transports import open_transport
 from link.transports.zenoh_threads import use_background_threads
@@ -130,7 +131,8 @@ def run_session(opts: SessionOptions) -> SessionResult:
             estimator = ErrorStateKF(subsampled(opts.sensor_spec, vehicle.imu.rate_hz, imu_rate_hz), imu_rate_hz)
             missing = [name for name, compiled in (("the estimator's kernels and timeline", eskf_kernels.COMPILED),
                                                    ("the latency compensator's steps", compensation_kernel.COMPILED),
-                                                   ("the controller's report law", controller_kernel.COMPILED))
+                                                   ("the controller's report law", controller_kernel.COMPILED),
+                                                   ("the MAVLink encoder of a tick's frames", frame_kernel.COMPILED))
                        if not compiled]
             if missing:
                 log.warning("ground station: %s not built (no C compiler at pip install?): the Python twins run, "

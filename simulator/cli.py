@@ -200,12 +200,14 @@ def emulator_command(argv: list[str]) -> int:
                  "lookahead %.3f ms", config.vehicles, config.clock, config.radio.name, config.crtp_radio_profile.name,
                  radio_link, config.seed,
                  config.prefix, config.vehicles, emulator.lockstep.lookahead_horizon_s() * 1e3)
+        from link.mavlink import frame_kernel
         from simulator import dynamics_kernels  # loaded already (the dynamics): asked here for the warning only
         from simulator.crazyflie import drive_kernel, pid_kernel
 
         missing = [name for name, compiled in (("the RK4 step and rotor lag", dynamics_kernels.COMPILED),
                                                ("the faithful firmware's drive chain", drive_kernel.COMPILED),
-                                               ("the faithful firmware's attitude and rate PIDs", pid_kernel.COMPILED))
+                                               ("the faithful firmware's attitude and rate PIDs", pid_kernel.COMPILED),
+                                               ("the MAVLink encoder of a tick's frames", frame_kernel.COMPILED))
                    if not compiled]
         if missing:
             log.warning("emulator: compiled kernels not built (no C compiler at pip install?): %s; their Python "

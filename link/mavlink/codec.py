@@ -86,6 +86,7 @@ from dataclasses import dataclass, fields
 from pymavlink.dialects.v20 import common as mav
 
 from link.keys import GROUND_STATION_SYSTEM_ID
+from link.mavlink import frame_kernel
 from link.mavlink.signing import SIGNATURE_BLOCK_LEN, SignatureCheck, Signing
 from link.messages import (
     AttitudeTarget,
@@ -318,10 +319,17 @@ def _enc_imu(m: ImuSample, limits, target: int) -> bytes:
                      0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, _IMU_FIELDS_UPDATED, 0)
 
 
+# ATT_POS_MOCAP's wire order is time, q, position, then the covariance, unknown in every frame we send: packed
+# once, appended per frame.
+_MOCAP_STATE = struct.Struct("<Q7f")
+_PACK_MOCAP_STATE = _MOCAP_STATE.pack
+_MOCAP_COVARIANCE_TAIL = _PACK_MOCAP(0, *(0.0,) * 7, *_NAN_COVARIANCE)[_MOCAP_STATE.size:]
+
+
 def _enc_mocap(m: MocapPose, limits, target: int) -> bytes:
     p = m.position_enu_m
     q = quat_enu_flu_to_ned_frd(m.attitude_wxyz)
-    return _PACK_MOCAP(_usec(m.time_s), *q, p[1], p[0], -p[2], *_NAN_COVARIANCE)
+    return _PACK_MOCAP_STATE(_usec(m.time_s), *q, p[1], p[0], -p[2]) + _MOCAP_COVARIANCE_TAIL
 
 
 def _enc_external_pose(m: ExternalPose, limits, target: int) -> bytes:
@@ -445,6 +453,32 @@ _ENCODERS: dict[type, tuple[Callable, int, bytes, str]] = {
     kind: (encoder, wire.msgid, wire.crc_extra, wire.name) for kind, (wire, encoder) in _ENCODER_WIRES.items()
 }
 _NEEDS_LIMITS = frozenset({ThrustMoment, AttitudeTarget})
+
+# The compiled twin of encode for the messages of a lockstep tick (link.mavlink.frame_kernel), given this
+# module's constants: it gives the bytes the encoders above and Codec._wrap give.
+KERNEL_KINDS: dict[type, int] = {  # message type -> its kind in frame_kernel.KINDS
+    kind: frame_kernel.KINDS.index(name) for kind, name in (
+        (ImuSample, "imu"), (MocapPose, "mocap"), (ExternalPose, "external_pose"), (TruthState, "truth"),
+        (ThrustMoment, "thrust_moment"), (AttitudeTarget, "attitude_target"))
+}
+if frame_kernel.COMPILED:
+    frame_kernel.configure(
+        _SQRT_HALF,
+        (W_IMU.msgid, W_IMU.crc_extra[0], b"", _IMU_FIELDS_UPDATED),
+        (W_MOCAP.msgid, W_MOCAP.crc_extra[0], _MOCAP_COVARIANCE_TAIL, 0),
+        (W_ODOMETRY.msgid, W_ODOMETRY.crc_extra[0], _ODOMETRY_TRUTH_TAIL, 0),
+        (W_ACTUATOR.msgid, W_ACTUATOR.crc_extra[0], b"", 0),
+        (W_ATTITUDE.msgid, W_ATTITUDE.crc_extra[0], b"", 0),
+    )
+
+
+def _limit_values(limits: ActuatorLimits | None) -> tuple[float, float, float, float] | None:
+    """The limits as the compiled encoder takes them (max moments about x, y, z, max thrust), None unless all are
+    floats (the Python's arithmetic on other numbers is left to the Python)."""
+    if limits is None:
+        return None
+    values = (*limits.max_moment_nm, limits.max_thrust_n)
+    return values if len(values) == 4 and all(type(v) is float for v in values) else None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -596,6 +630,9 @@ class Codec:
         self.limits = limits
         self.signing = signing
         self._sequence: dict[int, int] = {}  # per source system id (MocapPose frames use the body id)
+        # unsigned frames of a tick's messages go through the compiled encoder where it was built (same bytes)
+        self._kernel = frame_kernel.encode_frame if signing is None else None
+        self._limit_values = _limit_values(limits)
 
     def __repr__(self) -> str:
         return (f"Codec(system_id={self.system_id}, component_id={self.component_id}, "
@@ -617,6 +654,15 @@ class Codec:
             source = msg.body_id
             if not 1 <= source <= 255:
                 raise ValueError(f"MocapPose.body_id {source} out of range 1..255 (it is the system id)")
+        kernel = self._kernel
+        if kernel is not None and kind in KERNEL_KINDS:
+            sequence = self._sequence
+            seq = sequence.get(source, 0)
+            frame = kernel(KERNEL_KINDS[kind], msg, seq, source, self.component_id, target_system,
+                           self._limit_values)
+            if frame is not None:
+                sequence[source] = (seq + 1) & 0xFF
+                return frame
         try:
             payload = encoder(msg, limits, target_system)
         except (struct.error, ValueError, OverflowError, TypeError) as err:
@@ -916,15 +962,19 @@ def _decode_datagram(parser: FrameParser) -> Callable[[bytes], list[Decoded]]:
     return lambda frame: parser.feed(frame, True)
 
 
-def measure_codec_costs(n: int = 2000, signing: bool = False) -> dict[str, tuple[float, float]]:
+def measure_codec_costs(n: int = 2000, signing: bool = False,
+                        python_twin: bool = False) -> dict[str, tuple[float, float]]:
     """Median (encode_us, decode_us) per message type: encode = Codec.encode, decode = FrameParser.feed
-    of one whole frame (a datagram). With `signing`, frames are signed and checked (throwaway key)."""
+    of one whole frame (a datagram). With `signing`, frames are signed and checked (throwaway key). With
+    `python_twin`, encode runs the Python even where the compiled encoder (frame_kernel) was built."""
     limits = ActuatorLimits(0.6, (0.01, 0.01, 0.002))
     key = bytes(range(32))
     n = max(n, 10)
     results: dict[str, tuple[float, float]] = {}
     for msg in sample_messages():
         codec = Codec(1, 1, limits, Signing(key, 0) if signing else None)
+        if python_twin:
+            codec._kernel = None
         parser = FrameParser(limits, Signing(key, 0) if signing else None)
         encode_us = _median_us(codec.encode, [msg] * n)
         frames = [codec.encode(msg) for _ in range(n)]  # fresh timestamps: no replay rejections

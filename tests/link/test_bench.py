@@ -11,6 +11,7 @@ from contextlib import redirect_stderr, redirect_stdout
 import pytest
 
 from cfstack.link_bench import (
+    KERNEL_MESSAGES,
     PATHS,
     ROUND_TRIP_RATIO_TARGET,
     THROUGHPUT_TARGET_FPS,
@@ -21,6 +22,7 @@ from cfstack.link_bench import (
     format_report,
 )
 from link.keys import GROUND_STATION_SYSTEM_ID
+from link.mavlink import frame_kernel
 from link.mavlink.codec import ActuatorLimits, Codec, sample_messages
 from link.messages import ImuSample, ThrustMoment
 from model.vehicle import load_vehicle
@@ -113,9 +115,19 @@ def test_each_target_is_printed_with_the_verdict_its_number_deserves(tiny_run):
 def test_the_codec_table_has_every_message_type_signed_and_unsigned(tiny_run):
     table = section(tiny_run[1], "Codec cost")
     for message in sample_messages():
-        encode_us, decode_us, signed_encode_us, signed_decode_us = re.search(
-            rf"^  {type(message).__name__}\s+" + r"\s+".join([NUMBER] * 4) + r"\s*$", table, re.MULTILINE).groups()
+        name = type(message).__name__
+        twin = rf"\s+{NUMBER}\s+{NUMBER}" if name in KERNEL_MESSAGES and frame_kernel.COMPILED else r"\s+-\s+-"
+        row = re.search(rf"^  {name}\s+" + r"\s+".join([NUMBER] * 4) + rf"(?:{twin})?\s*$", table, re.MULTILINE)
+        encode_us, decode_us, signed_encode_us, signed_decode_us, *python = row.groups()
         assert all(float(value) > 0 for value in (encode_us, decode_us, signed_encode_us, signed_decode_us))
+        if frame_kernel.COMPILED:  # the Python encoder beside the compiled one, and its cost over encode's
+            if name in KERNEL_MESSAGES:
+                python_us, ratio = map(float, python)
+                encode = float(encode_us)
+                low, high = (python_us - 0.05) / (encode + 0.05), (python_us + 0.05) / (encode - 0.05)
+                assert python_us > 0 and low - 0.005 <= ratio <= high + 0.005  # the cells are rounded to 0.1 us
+            else:
+                assert python == [None, None] or python == []
 
 
 def test_progress_goes_to_stderr_and_the_table_to_stdout(tiny_run):
