@@ -82,7 +82,7 @@ DEFAULT_COUNT = 2000  # round trips per path
 DEFAULT_FRAMES = 50_000  # frames per throughput run
 DEFAULT_BLOCKS = 8
 DEFAULT_CODEC_CALLS = 2000  # calls per message type and direction in measure_codec_costs
-KERNEL_MESSAGES = frozenset(kind.__name__ for kind in KERNEL_KINDS)  # what the compiled encoder takes
+KERNEL_MESSAGES = frozenset(kind.__name__ for kind in KERNEL_KINDS)  # what the compiled encoder takes (the parser: all)
 QUICK = {"count": 100, "frames": 3000, "blocks": 2, "codec_calls": 200}
 WARMUP_ROUND_TRIPS = 30  # per block, not recorded: first samples after a phase switch are slow
 
@@ -630,8 +630,8 @@ def run_bench(count: int = DEFAULT_COUNT, frames: int = DEFAULT_FRAMES, blocks: 
     for signing in (False, True):
         progress(f"codec costs, signing {'on' if signing else 'off'} ({codec_calls} calls per message type)")
         report.codec_us[signing] = measure_codec_costs(codec_calls, signing=signing)
-    if frame_kernel.COMPILED:  # the compiled encoder's baseline, in the same run: its Python twin
-        progress(f"codec costs, the Python encoder ({codec_calls} calls per message type)")
+    if frame_kernel.COMPILED:  # the compiled encoder's and parser's baseline, in the same run: their Python twins
+        progress(f"codec costs, the Python twins ({codec_calls} calls per message type)")
         report.codec_twin_us = measure_codec_costs(codec_calls, python_twin=True)
     return report
 
@@ -720,10 +720,11 @@ def _codec_table(report: BenchReport) -> str:
     twin = report.codec_twin_us
     lines = [
         "Codec cost per message, median us (encode = Codec.encode; decode = FrameParser.feed of one datagram)"
-        + ("; py enc = the Python encoder where the compiled one (link.mavlink.frame_kernel) takes the message, "
-           "py/enc its cost over encode's" if twin else "; the compiled encoder was not built"),
+        + ("; py enc, py dec = the Python twins of the compiled encoder (the messages it takes) and parser "
+           "(link.mavlink.frame_kernel), py/... their cost over the compiled one's" if twin
+           else "; the compiled encoder and parser were not built"),
         f"  {'message':<16}{'encode':>8}{'decode':>8}{'signed enc':>12}{'signed dec':>12}"
-        + (f"{'py enc':>8}{'py/enc':>8}" if twin else ""),
+        + (f"{'py enc':>8}{'py dec':>8}{'py/enc':>8}{'py/dec':>8}" if twin else ""),
     ]
     plain, signed = report.codec_us[False], report.codec_us[True]
     for name, (encode_us, decode_us) in plain.items():
@@ -731,9 +732,11 @@ def _codec_table(report: BenchReport) -> str:
         line = (f"  {name:<16}{encode_us:>8.1f}{decode_us:>8.1f}{signed_encode_us:>12.1f}"
                 f"{signed_decode_us:>12.1f}")
         if twin:
-            python_us = twin[name][0]
+            python_encode_us, python_decode_us = twin[name]
             taken = name in KERNEL_MESSAGES
-            line += f"{python_us:>8.1f}{python_us / encode_us:>8.2f}" if taken else f"{'-':>8}{'-':>8}"
+            line += (f"{python_encode_us:>8.1f}" if taken else f"{'-':>8}") + f"{python_decode_us:>8.1f}"
+            line += (f"{python_encode_us / encode_us:>8.2f}" if taken else f"{'-':>8}")
+            line += f"{python_decode_us / decode_us:>8.2f}"
         lines.append(line)
     return "\n".join(lines)
 

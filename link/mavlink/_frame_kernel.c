@@ -1,9 +1,9 @@
-/* Compiled twin of the MAVLink encoder for the messages a lockstep tick sends (link.mavlink.codec, issue 19):
-Codec.encode of ImuSample, TruthState, MocapPose, ExternalPose, ThrustMoment and AttitudeTarget, unsigned.
+/* Compiled twins of the MAVLink codec's per-frame work (link.mavlink.codec, issue 19), in both directions.
+
+Encoding: Codec.encode of ImuSample, TruthState, MocapPose, ExternalPose, ThrustMoment and AttitudeTarget, unsigned.
 The emulator encodes about eleven such frames per 100 Hz tick (five IMU samples, five truths, the mocap pose),
 the ground station one or two per tick on its critical path.
-
-encode_frame takes in: the kind (link.mavlink.frame_kernel's KIND_* order), the message, the frame's sequence
+encode_frame takes in: the kind (link.mavlink.frame_kernel's KINDS order), the message, the frame's sequence
 number, source system id, component id and target system, and the codec's limits (max moments N m about x, y, z
 and max thrust N, as floats; None without limits). It gives out the whole frame (bytes): payload packed as the
 wire's struct packs it, zero-truncated, header, CRC-16/MCRF4XX over header, payload and CRC_EXTRA. It gives
@@ -13,13 +13,22 @@ cannot hold (negative, non-finite, too large for its integer), a value too large
 a target system outside 0..255, no limits for a normalised message. The caller then runs the Python, which
 gives what Python gives, errors included.
 
-configure (called once by frame_kernel at import) takes the constants from the Python twin: sqrt(1/2) of the
-quaternion conversion, and per kind the message id, CRC_EXTRA and the fixed tail (IMU: fields_updated;
-mocap and truth: the packed bytes after the state).
+Parsing: FrameParser._scan for a parser without signing (every ground station and emulator parser unless MAVLink
+signing is on). parse_frames takes in the parser, the bytes to scan and whether they end a datagram; it gives
+out (the fields of each frame, as _scan's tuples; the position scanned to), adds to the parser's counters what
+_scan adds (on every exit, errors included), and calls its _undelivered where _scan does. HIGHRES_IMU, ATT_POS_MOCAP
+and ODOMETRY are decoded here (codec._dec_imu, _dec_mocap, _dec_truth: the same arithmetic, the same messages);
+every other message through its Python decoder, whose errors count as _scan counts them.
 
-Same bytes as the Python: every number is the Python expression's, one IEEE double operation at a time (setup.py
-builds with -ffp-contract=off), converted to float32 by a C cast as struct's PyFloat_Pack4 does, and times are
-rounded as Python's round() rounds (half to even). tests/link/test_frame_kernel.py compares the two. */
+configure and configure_parser (called once by link.mavlink.codec at import) take the constants from the Python
+twin: sqrt(1/2) of the quaternion conversion, per wire the message id, CRC_EXTRA and the fixed tail (IMU:
+fields_updated; mocap and truth: the packed bytes after the state); the decoders done natively, the messages
+they make, the ground station's system id and MAV_FRAME_LOCAL_NED.
+
+Same bytes and bits as the Python: every number is the Python expression's, one IEEE double operation at a time
+(setup.py builds with -ffp-contract=off), converted to float32 by a C cast as struct's PyFloat_Pack4 does and back
+as PyFloat_Unpack4 does, times rounded as Python's round() rounds (half to even) and divided as Python divides an
+int by a float. tests/link/test_frame_kernel.py compares the twins. */
 
 /* includes Python.h and math.h; check_nargs */
 #include "../../model/_kernels.h"
@@ -233,7 +242,8 @@ static int pack_truth(PyObject *msg, Payload *p) { /* _enc_truth */
     return 0;
 }
 
-static int pack_thrust_moment(PyObject *msg, const double *limits, long target, Payload *p) { /* _enc_thrust_moment */
+/* _enc_thrust_moment */
+static int pack_thrust_moment(PyObject *msg, const double *limits, long target, Payload *p) {
     double t, thrust, m[3];
     READ(read_float_attr(msg, A_TIME, &t));
     READ(read_float_attr(msg, A_THRUST, &thrust));
@@ -250,7 +260,8 @@ static int pack_thrust_moment(PyObject *msg, const double *limits, long target, 
     return 0;
 }
 
-static int pack_attitude_target(PyObject *msg, const double *limits, long target, Payload *p) { /* _enc_attitude_target */
+/* _enc_attitude_target */
+static int pack_attitude_target(PyObject *msg, const double *limits, long target, Payload *p) {
     double t, thrust, q[4], rates[3];
     READ(read_float_attr(msg, A_TIME, &t));
     READ(read_float_attr(msg, A_THRUST, &thrust));
@@ -357,6 +368,385 @@ static PyObject *encode_frame(PyObject *self, PyObject *const *args, Py_ssize_t 
                 (unsigned long)component);
 }
 
+/* ======================================================================== parsing (FrameParser._scan) */
+
+#define MIN_FRAME_LEN (HEADER_LEN + 2)
+#define SIGNATURE_BLOCK_LEN 13 /* link id, timestamp, signature */
+#define IFLAG_SIGNED 0x01
+
+/* Counters the scan adds to as it goes (FrameParser.counters), flushed into the Python object on every exit */
+enum { C_GARBAGE, C_TRUNCATED, C_UNKNOWN, C_CRC, C_VALID_BYTES, C_BAD_HEADERS, C_FRAMES_OK, N_COUNTS };
+static const char *COUNT_NAMES[N_COUNTS] = {"garbage_bytes", "truncated_frames", "unknown_messages", "crc_failures",
+                                            "valid_frame_bytes", "bad_headers", "frames_ok"};
+static PyObject *count_names[N_COUNTS];
+
+/* The Python decoders the kernel decodes natively (codec._dec_imu, _dec_mocap, _dec_truth), the messages they
+   make, and their constants; each native layout is used only while its wire's struct has the size it assumes */
+enum { NATIVE_IMU, NATIVE_MOCAP, NATIVE_TRUTH, N_NATIVE };
+static const Py_ssize_t NATIVE_SIZE[N_NATIVE] = {63, 120, 233}; /* HIGHRES_IMU, ATT_POS_MOCAP, ODOMETRY */
+static PyObject *native_decoder[N_NATIVE];
+static PyObject *imu_type, *mocap_type, *external_pose_type, *truth_type;
+static long ground_station_id, frame_local_ned;
+static int parser_configured = 0;
+static PyObject *s_counters, *s_wires, *s_undelivered, *s_unpack_from, *s_unsupported, *s_bad_lengths,
+    *s_decode_errors;
+
+static int flush_counts(PyObject *counters, const long long counts[N_COUNTS]) {
+    for (int k = 0; k < N_COUNTS; k++) {
+        if (counts[k] == 0) continue;
+        PyObject *old = PyObject_GetAttr(counters, count_names[k]);
+        if (old == NULL) return -1;
+        PyObject *delta = PyLong_FromLongLong(counts[k]);
+        PyObject *sum = delta == NULL ? NULL : PyNumber_Add(old, delta);
+        Py_DECREF(old);
+        Py_XDECREF(delta);
+        if (sum == NULL) return -1;
+        int status = PyObject_SetAttr(counters, count_names[k], sum);
+        Py_DECREF(sum);
+        if (status < 0) return -1;
+    }
+    return 0;
+}
+
+static double f32_at(const unsigned char *b, int offset) {
+    uint32_t bits = (uint32_t)b[offset] | (uint32_t)b[offset + 1] << 8 | (uint32_t)b[offset + 2] << 16 |
+                    (uint32_t)b[offset + 3] << 24;
+    float f;
+    memcpy(&f, &bits, sizeof f);
+    return (double)f;
+}
+
+static double usec_to_s(const unsigned char *b) { /* v[0] / 1e6 of a 'Q' field at offset 0 */
+    uint64_t v = 0;
+    for (int k = 7; k >= 0; k--) v = v << 8 | b[k];
+    return (double)v / 1e6;
+}
+
+/* codec.quat_ned_frd_to_enu_flu of the four float32 at offset */
+static PyObject *quat_enu_flu_at(const unsigned char *b, int offset) {
+    double w = f32_at(b, offset), x = f32_at(b, offset + 4), y = f32_at(b, offset + 8), z = f32_at(b, offset + 12);
+    double q[4] = {sqrt_half * (w + z), sqrt_half * (x + y), sqrt_half * (x - y), sqrt_half * (w - z)};
+    return float_tuple(q, 4);
+}
+
+static PyObject *vec3(double a, double b, double c) {
+    double v[3] = {a, b, c};
+    return float_tuple(v, 3);
+}
+
+/* Call cls(time, then the other arguments, stolen); NULL with the error set */
+static PyObject *make(PyObject *cls, double t, int n, PyObject **args) {
+    PyObject *call[6];
+    int ok = 1;
+    call[0] = PyFloat_FromDouble(t);
+    for (int k = 0; k < n; k++) {
+        call[k + 1] = args[k];
+        ok = ok && args[k] != NULL;
+    }
+    PyObject *out = ok && call[0] != NULL ? PyObject_Vectorcall(cls, call, (size_t)(n + 1), NULL) : NULL;
+    for (int k = 0; k <= n; k++) Py_XDECREF(call[k]);
+    return out;
+}
+
+/* The message the Python decoder would give for a native kind (b: the payload, zero-extended to its size);
+   Py_None (new reference) where it gives None; NULL with the error set */
+static PyObject *decode_native(int kind, const unsigned char *b, long system_id) {
+    PyObject *args[4];
+    switch (kind) {
+    case NATIVE_IMU: /* _dec_imu */
+        args[0] = vec3(f32_at(b, 8), -f32_at(b, 12), -f32_at(b, 16));
+        args[1] = vec3(f32_at(b, 20), -f32_at(b, 24), -f32_at(b, 28));
+        return make(imu_type, usec_to_s(b), 2, args);
+    case NATIVE_MOCAP: { /* _dec_mocap: from the ground station, the receiving vehicle's own pose */
+        PyObject *position = vec3(f32_at(b, 28), f32_at(b, 24), -f32_at(b, 32));
+        PyObject *attitude = quat_enu_flu_at(b, 8);
+        if (system_id == ground_station_id) {
+            args[0] = position, args[1] = attitude;
+            return make(external_pose_type, usec_to_s(b), 2, args);
+        }
+        args[0] = PyLong_FromLong(system_id), args[1] = position, args[2] = attitude;
+        return make(mocap_type, usec_to_s(b), 3, args);
+    }
+    default: /* _dec_truth */
+        if (b[228] != frame_local_ned || b[229] != frame_local_ned) Py_RETURN_NONE;
+        args[0] = vec3(f32_at(b, 12), f32_at(b, 8), -f32_at(b, 16));
+        args[1] = vec3(f32_at(b, 40), f32_at(b, 36), -f32_at(b, 44));
+        args[2] = quat_enu_flu_at(b, 20);
+        args[3] = vec3(f32_at(b, 48), -f32_at(b, 52), -f32_at(b, 56));
+        return make(truth_type, usec_to_s(b), 4, args);
+    }
+}
+
+/* parser._undelivered(counter, system id, component id, sequence); -1 with the error set */
+static int undelivered(PyObject *parser, PyObject *counter, long system_id, long component_id, long sequence) {
+    PyObject *sid = PyLong_FromLong(system_id), *cid = PyLong_FromLong(component_id), *seq = PyLong_FromLong(sequence);
+    PyObject *out = sid && cid && seq ? PyObject_CallMethodObjArgs(parser, s_undelivered, counter, sid, cid, seq, NULL)
+                                      : NULL;
+    Py_XDECREF(sid);
+    Py_XDECREF(cid);
+    Py_XDECREF(seq);
+    Py_XDECREF(out);
+    return out == NULL ? -1 : 0;
+}
+
+/* The Python decoder's answer, as _scan's try block has it: the (message, target) result, Py_None for None,
+   or `decode_error` set where it raised ValueError, TypeError or OverflowError; NULL for any other error */
+static PyObject *decode_python(PyObject *unpacker, PyObject *decoder, PyObject *source, Py_ssize_t offset,
+                               long system_id, int *decode_error) {
+    PyObject *off = PyLong_FromSsize_t(offset), *sid = PyLong_FromLong(system_id);
+    PyObject *values = off && sid ? PyObject_CallMethodObjArgs(unpacker, s_unpack_from, source, off, NULL) : NULL;
+    PyObject *result = values == NULL ? NULL : PyObject_CallFunctionObjArgs(decoder, values, sid, NULL);
+    Py_XDECREF(off);
+    Py_XDECREF(sid);
+    Py_XDECREF(values);
+    if (result == NULL && (PyErr_ExceptionMatches(PyExc_ValueError) || PyErr_ExceptionMatches(PyExc_TypeError) ||
+                           PyErr_ExceptionMatches(PyExc_OverflowError))) {
+        PyErr_Clear();
+        *decode_error = 1;
+    }
+    return result;
+}
+
+/* One frame's (message, system id, component id, sequence, msgid, signed, frame, target, link id), as _scan
+   appends it for a parser without signing; NULL with the error set */
+static PyObject *frame_fields(PyObject *message, long sid, long cid, long seq, long msgid, PyObject *frame,
+                              PyObject *target) {
+    PyObject *t = PyTuple_New(9);
+    if (t == NULL) return NULL;
+    long ints[4] = {sid, cid, seq, msgid};
+    for (int k = 0; k < 4; k++) {
+        PyObject *v = PyLong_FromLong(ints[k]);
+        if (v == NULL) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, 1 + k, v);
+    }
+    Py_INCREF(message);
+    PyTuple_SET_ITEM(t, 0, message);
+    Py_INCREF(Py_False);
+    PyTuple_SET_ITEM(t, 5, Py_False);
+    Py_INCREF(frame);
+    PyTuple_SET_ITEM(t, 6, frame);
+    Py_INCREF(target);
+    PyTuple_SET_ITEM(t, 7, target);
+    Py_INCREF(Py_None);
+    PyTuple_SET_ITEM(t, 8, Py_None);
+    return t;
+}
+
+/* Decode one genuine frame whose wire has a decoder (b + start: the payload, plen bytes) into out; 0, or -1
+   with the error set. Counts and hands back what _scan's Python would. */
+static int decode_frame(PyObject *parser, PyObject *buf, const unsigned char *b, Py_ssize_t i, Py_ssize_t end,
+                        Py_ssize_t n, PyObject *wire, long plen, long sid, long cid, long seq, long msgid,
+                        long long counts[N_COUNTS], PyObject *out) {
+    PyObject *unpacker = PyTuple_GET_ITEM(wire, 1), *decoder = PyTuple_GET_ITEM(wire, 3);
+    Py_ssize_t size = PyLong_AsSsize_t(PyTuple_GET_ITEM(wire, 2));
+    if (size < 0 || size > MAX_PAYLOAD) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "parse_frames: a wire's size is out of range");
+        return -1;
+    }
+    const unsigned char *payload = b + i + HEADER_LEN;
+    unsigned char extended[MAX_PAYLOAD]; /* a zero-truncated payload reads as zero-extended (MAVLink 2) */
+    memset(extended, 0, (size_t)size);
+    memcpy(extended, payload, (size_t)(plen < size ? plen : size));
+    int native = -1;
+    for (int k = 0; k < N_NATIVE; k++)
+        if (decoder == native_decoder[k] && size == NATIVE_SIZE[k]) native = k;
+    PyObject *message, *target, *result = NULL;
+    int decode_error = 0;
+    if (native >= 0) {
+        message = decode_native(native, extended, sid);
+        if (message == NULL) return -1;
+        if (message == Py_None) {
+            Py_DECREF(message);
+            return undelivered(parser, s_unsupported, sid, cid, seq);
+        }
+        target = PyLong_FromLong(0);
+        if (target == NULL) {
+            Py_DECREF(message);
+            return -1;
+        }
+    } else {
+        PyObject *source = plen >= size ? (Py_INCREF(buf), buf)
+                                        : PyBytes_FromStringAndSize((const char *)extended, size);
+        if (source == NULL) return -1;
+        result = decode_python(unpacker, decoder, source, plen >= size ? i + HEADER_LEN : 0, sid, &decode_error);
+        Py_DECREF(source);
+        if (result == NULL) return decode_error ? undelivered(parser, s_decode_errors, sid, cid, seq) : -1;
+        if (result == Py_None) {
+            Py_DECREF(result);
+            return undelivered(parser, s_unsupported, sid, cid, seq);
+        }
+        PyObject *pair = PySequence_Fast(result, "a decoder returns (message, target)");
+        Py_DECREF(result);
+        if (pair == NULL) return -1;
+        if (PySequence_Fast_GET_SIZE(pair) != 2) {
+            Py_DECREF(pair);
+            PyErr_SetString(PyExc_ValueError, "a decoder returns (message, target)");
+            return -1;
+        }
+        message = PySequence_Fast_GET_ITEM(pair, 0);
+        target = PySequence_Fast_GET_ITEM(pair, 1);
+        Py_INCREF(message);
+        Py_INCREF(target);
+        Py_DECREF(pair);
+    }
+    counts[C_FRAMES_OK]++;
+    PyObject *frame = end == n && i == 0 ? (Py_INCREF(buf), buf)
+                                         : PyBytes_FromStringAndSize((const char *)b + i, end - i);
+    PyObject *fields = frame == NULL ? NULL : frame_fields(message, sid, cid, seq, msgid, frame, target);
+    Py_XDECREF(frame);
+    Py_DECREF(message);
+    Py_DECREF(target);
+    if (fields == NULL) return -1;
+    int status = PyList_Append(out, fields);
+    Py_DECREF(fields);
+    return status;
+}
+
+/* FrameParser._scan for a parser without signing: (the frames' fields, the position scanned to) */
+static PyObject *parse_frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (check_nargs("parse_frames", nargs, 3) < 0) return NULL;
+    if (!configured || !parser_configured) {
+        PyErr_SetString(PyExc_RuntimeError, "parse_frames: configure() and configure_parser() were not called");
+        return NULL;
+    }
+    PyObject *parser = args[0], *buf = args[1];
+    if (!PyBytes_CheckExact(buf)) {
+        PyErr_SetString(PyExc_TypeError, "parse_frames: the buffer must be bytes");
+        return NULL;
+    }
+    int final = PyObject_IsTrue(args[2]);
+    if (final < 0) return NULL;
+    PyObject *counters = PyObject_GetAttr(parser, s_counters);
+    PyObject *wires = counters == NULL ? NULL : PyObject_GetAttr(parser, s_wires);
+    PyObject *out = wires == NULL ? NULL : PyList_New(0);
+    if (out == NULL || !PyDict_Check(wires)) {
+        if (wires != NULL && !PyDict_Check(wires))
+            PyErr_SetString(PyExc_TypeError, "parse_frames: _wires is not a dict");
+        Py_XDECREF(counters);
+        Py_XDECREF(wires);
+        Py_XDECREF(out);
+        return NULL;
+    }
+    const unsigned char *b = (const unsigned char *)PyBytes_AS_STRING(buf);
+    Py_ssize_t n = PyBytes_GET_SIZE(buf), pos = 0;
+    long long counts[N_COUNTS] = {0};
+    int failed = 0;
+    while (pos < n && !failed) {
+        Py_ssize_t i = pos;
+        if (b[pos] != MAGIC_V2) {
+            const unsigned char *hit = memchr(b + pos, MAGIC_V2, (size_t)(n - pos));
+            if (hit == NULL) {
+                counts[C_GARBAGE] += n - pos;
+                pos = n;
+                break;
+            }
+            i = hit - b;
+            counts[C_GARBAGE] += i - pos;
+            pos = i;
+        }
+        long plen = 0, flags = 0, seq = 0, sid = 0, cid = 0, msgid = 0;
+        Py_ssize_t end = n + 1; /* unknown until the length byte has arrived */
+        if (n - i >= MIN_FRAME_LEN) {
+            plen = b[i + 1], flags = b[i + 2], seq = b[i + 4], sid = b[i + 5], cid = b[i + 6];
+            msgid = (long)b[i + 7] | (long)b[i + 8] << 8 | (long)b[i + 9] << 16;
+            end = i + MIN_FRAME_LEN + plen + (flags & IFLAG_SIGNED ? SIGNATURE_BLOCK_LEN : 0);
+        }
+        if (end > n) { /* incomplete: wait for more bytes, unless this was a whole datagram */
+            if (!final) break;
+            counts[C_TRUNCATED]++, counts[C_GARBAGE]++, pos = i + 1;
+            continue;
+        }
+        PyObject *key = PyLong_FromLong(msgid);
+        PyObject *wire = key == NULL ? NULL : PyDict_GetItemWithError(wires, key); /* borrowed */
+        Py_XDECREF(key);
+        if (wire == NULL) {
+            if (PyErr_Occurred()) {
+                failed = 1;
+                break;
+            }
+            counts[C_UNKNOWN]++, counts[C_GARBAGE]++, pos = i + 1; /* outside the dialect: cannot be verified */
+            continue;
+        }
+        PyObject *extra = PyTuple_Check(wire) && PyTuple_GET_SIZE(wire) == 4 ? PyTuple_GET_ITEM(wire, 0) : NULL;
+        if (extra == NULL || !PyBytes_Check(extra) || PyBytes_GET_SIZE(extra) != 1) {
+            PyErr_SetString(PyExc_TypeError, "parse_frames: a wire is not (crc_extra, struct, size, decoder)");
+            failed = 1;
+            break;
+        }
+        Py_ssize_t crc_at = i + HEADER_LEN + plen;
+        uint16_t crc = crc_accumulate(0xFFFF, b + i + 1, crc_at - (i + 1));
+        crc = crc_accumulate(crc, (const unsigned char *)PyBytes_AS_STRING(extra), 1);
+        if (crc != (uint16_t)(b[crc_at] | b[crc_at + 1] << 8)) {
+            counts[C_CRC]++, counts[C_GARBAGE]++, pos = i + 1;
+            continue;
+        }
+        pos = end; /* a genuine frame: whatever happens next, skip it whole */
+        counts[C_VALID_BYTES] += end - i;
+        if (flags & ~IFLAG_SIGNED) {
+            counts[C_BAD_HEADERS]++;
+            continue;
+        }
+        if (PyTuple_GET_ITEM(wire, 3) == Py_None) {
+            failed = undelivered(parser, s_unsupported, sid, cid, seq) < 0;
+            continue;
+        }
+        if (plen == 0) {
+            failed = undelivered(parser, s_bad_lengths, sid, cid, seq) < 0;
+            continue;
+        }
+        failed = decode_frame(parser, buf, b, i, end, n, wire, plen, sid, cid, seq, msgid, counts, out) < 0;
+    }
+    /* the counts so far go into the Python object on every exit, as the Python's += would have left them */
+    PyObject *type, *value, *traceback;
+    PyErr_Fetch(&type, &value, &traceback);
+    int flushed = flush_counts(counters, counts);
+    if (failed || flushed < 0) {
+        if (failed) {
+            if (flushed < 0) PyErr_Clear();
+            PyErr_Restore(type, value, traceback);
+        } else {
+            Py_XDECREF(type);
+            Py_XDECREF(value);
+            Py_XDECREF(traceback);
+        }
+        Py_DECREF(counters);
+        Py_DECREF(wires);
+        Py_DECREF(out);
+        return NULL;
+    }
+    Py_DECREF(counters);
+    Py_DECREF(wires);
+    PyObject *result = Py_BuildValue("(Nn)", out, pos);
+    return result;
+}
+
+/* The parser's constants: the Python decoders decoded natively (codec._dec_imu, _dec_mocap, _dec_truth), the
+   messages they make (ImuSample, MocapPose, ExternalPose, TruthState), the ground station's system id and
+   MAV_FRAME_LOCAL_NED */
+static PyObject *configure_parser(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (check_nargs("configure_parser", nargs, 9) < 0) return NULL;
+    PyObject **slots[7] = {&native_decoder[NATIVE_IMU], &native_decoder[NATIVE_MOCAP], &native_decoder[NATIVE_TRUTH],
+                           &imu_type, &mocap_type, &external_pose_type, &truth_type};
+    for (int k = 0; k < 7; k++) {
+        if (!PyCallable_Check(args[k])) {
+            PyErr_SetString(PyExc_TypeError, "configure_parser: the decoders and messages must be callables");
+            return NULL;
+        }
+        Py_INCREF(args[k]);
+        Py_XSETREF(*slots[k], args[k]);
+    }
+    ground_station_id = PyLong_AsLong(args[7]);
+    frame_local_ned = PyLong_AsLong(args[8]);
+    if (PyErr_Occurred()) return NULL;
+    parser_configured = 1;
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------------ configure */
 
 /* One wire's constants: (msgid, crc_extra, tail bytes, fields_updated) */
@@ -393,6 +783,12 @@ static PyMethodDef methods[] = {
     {"encode_frame", (PyCFunction)(void (*)(void))encode_frame, METH_FASTCALL,
      "encode_frame(kind, message, sequence, source, component, target, limits) -> bytes | None "
      "(link.mavlink.frame_kernel)"},
+    {"parse_frames", (PyCFunction)(void (*)(void))parse_frames, METH_FASTCALL,
+     "parse_frames(parser, buf, final) -> (fields of each frame, position scanned to) (FrameParser._scan, "
+     "without signing)"},
+    {"configure_parser", (PyCFunction)(void (*)(void))configure_parser, METH_FASTCALL,
+     "configure_parser(dec_imu, dec_mocap, dec_truth, ImuSample, MocapPose, ExternalPose, TruthState, "
+     "ground_station_id, MAV_FRAME_LOCAL_NED)"},
     {"configure", (PyCFunction)(void (*)(void))configure, METH_FASTCALL,
      "configure(sqrt_half, imu, mocap, truth, actuator, attitude): the Python twin's constants, each wire "
      "(msgid, crc_extra, tail bytes, fields_updated)"},
@@ -408,6 +804,18 @@ PyMODINIT_FUNC PyInit__frame_kernel(void) {
     for (int i = 0; i < N_ATTRS; i++) {
         attr_names[i] = PyUnicode_InternFromString(ATTR_NAMES[i]);
         if (attr_names[i] == NULL) return NULL;
+    }
+    for (int i = 0; i < N_COUNTS; i++) {
+        count_names[i] = PyUnicode_InternFromString(COUNT_NAMES[i]);
+        if (count_names[i] == NULL) return NULL;
+    }
+    PyObject **names[7] = {&s_counters, &s_wires, &s_undelivered, &s_unpack_from, &s_unsupported, &s_bad_lengths,
+                           &s_decode_errors};
+    const char *texts[7] = {"counters", "_wires", "_undelivered", "unpack_from", "unsupported_messages", "bad_lengths",
+                            "decode_errors"};
+    for (int i = 0; i < 7; i++) {
+        *names[i] = PyUnicode_InternFromString(texts[i]);
+        if (*names[i] == NULL) return NULL;
     }
     return PyModule_Create(&module);
 }

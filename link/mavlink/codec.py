@@ -455,21 +455,12 @@ _ENCODERS: dict[type, tuple[Callable, int, bytes, str]] = {
 _NEEDS_LIMITS = frozenset({ThrustMoment, AttitudeTarget})
 
 # The compiled twin of encode for the messages of a lockstep tick (link.mavlink.frame_kernel), given this
-# module's constants: it gives the bytes the encoders above and Codec._wrap give.
+# module's constants (configured below): it gives the bytes the encoders above and Codec._wrap give.
 KERNEL_KINDS: dict[type, int] = {  # message type -> its kind in frame_kernel.KINDS
     kind: frame_kernel.KINDS.index(name) for kind, name in (
         (ImuSample, "imu"), (MocapPose, "mocap"), (ExternalPose, "external_pose"), (TruthState, "truth"),
         (ThrustMoment, "thrust_moment"), (AttitudeTarget, "attitude_target"))
 }
-if frame_kernel.COMPILED:
-    frame_kernel.configure(
-        _SQRT_HALF,
-        (W_IMU.msgid, W_IMU.crc_extra[0], b"", _IMU_FIELDS_UPDATED),
-        (W_MOCAP.msgid, W_MOCAP.crc_extra[0], _MOCAP_COVARIANCE_TAIL, 0),
-        (W_ODOMETRY.msgid, W_ODOMETRY.crc_extra[0], _ODOMETRY_TRUTH_TAIL, 0),
-        (W_ACTUATOR.msgid, W_ACTUATOR.crc_extra[0], b"", 0),
-        (W_ATTITUDE.msgid, W_ATTITUDE.crc_extra[0], b"", 0),
-    )
 
 
 def _limit_values(limits: ActuatorLimits | None) -> tuple[float, float, float, float] | None:
@@ -756,6 +747,8 @@ class FrameParser:
         self.frame_observer: Callable[[int, int, int], None] | None = None
         self._pending = b""
         self._wires = _parser_table(self.limits)
+        # frames go through the compiled parser where it was built, unless they are signed (same results)
+        self._kernel = frame_kernel.parse_frames if self.signing is None else None
 
     def _undelivered(self, counter: str, system_id: int, component_id: int, sequence: int) -> None:
         """Count an authentic frame that is not delivered; its sequence number still counts as seen."""
@@ -789,16 +782,26 @@ class FrameParser:
             return []
 
     def _feed(self, data, final: bool) -> list[tuple]:
-        # One loop does framing, CRC and decoding, with no helper calls on the way of a good frame: this
-        # runs per frame at 500 Hz-1 kHz, and on the link's round trip right after a wake-up, where every
-        # operation costs several times its hot-loop time (the caches are cold; see cfstack.link_bench).
-        c = self.counters
-        c.bytes_in += len(data)
+        self.counters.bytes_in += len(data)
         if self._pending:
             buf = self._pending + bytes(data)
             self._pending = b""
         else:
             buf = bytes(data)  # no copy when data is bytes already
+        kernel = self._kernel
+        out, pos = self._scan(buf, final) if kernel is None else kernel(self, buf, final)
+        if pos < len(buf):
+            self._pending = buf[pos:]  # an incomplete frame starting with its magic byte
+        return out
+
+    def _scan(self, buf: bytes, final: bool) -> tuple[list[tuple], int]:
+        """(the fields of each frame in buf, the position scanned to: an incomplete frame starts there). The
+        compiled parse_frames (frame_kernel, for a parser without signing) is its twin.
+
+        One loop does framing, CRC and decoding, with no helper calls on the way of a good frame: this
+        runs per frame at 500 Hz-1 kHz, and on the link's round trip right after a wake-up, where every
+        operation costs several times its hot-loop time (the caches are cold; see cfstack.link_bench)."""
+        c = self.counters
         wires = self._wires
         out: list = []
         n = len(buf)
@@ -810,7 +813,7 @@ class FrameParser:
                 i = buf.find(_MAGIC, pos)
                 if i < 0:
                     c.garbage_bytes += n - pos
-                    return out
+                    return out, n
                 c.garbage_bytes += i - pos
                 pos = i
             if n - i < MIN_FRAME_LEN:
@@ -873,9 +876,7 @@ class FrameParser:
             c.frames_ok += 1
             message, target = result
             out.append((message, system_id, component_id, sequence, msgid, signed, frame, target, link_id))
-        if pos < n:
-            self._pending = buf[pos:]  # an incomplete frame starting with its magic byte
-        return out
+        return out, pos
 
     def _signature_link_id(self, frame: bytes, flags: int, msgid: int, system_id: int,
                            component_id: int) -> int | None:
@@ -922,6 +923,20 @@ def _parser_table(limits: ActuatorLimits | None) -> dict[int, tuple]:
     return table
 
 
+# The compiled twins (link.mavlink.frame_kernel) take this module's constants and decoders once
+if frame_kernel.COMPILED:
+    frame_kernel.configure(
+        _SQRT_HALF,
+        (W_IMU.msgid, W_IMU.crc_extra[0], b"", _IMU_FIELDS_UPDATED),
+        (W_MOCAP.msgid, W_MOCAP.crc_extra[0], _MOCAP_COVARIANCE_TAIL, 0),
+        (W_ODOMETRY.msgid, W_ODOMETRY.crc_extra[0], _ODOMETRY_TRUTH_TAIL, 0),
+        (W_ACTUATOR.msgid, W_ACTUATOR.crc_extra[0], b"", 0),
+        (W_ATTITUDE.msgid, W_ATTITUDE.crc_extra[0], b"", 0),
+    )
+    frame_kernel.configure_parser(_dec_imu, _dec_mocap, _dec_truth, ImuSample, MocapPose, ExternalPose, TruthState,
+                                  GROUND_STATION_SYSTEM_ID, mav.MAV_FRAME_LOCAL_NED)
+
+
 # ---------------------------------------------------------------------------------------------
 # Cost measurement (used by `cfstack link-bench`)
 # ---------------------------------------------------------------------------------------------
@@ -966,16 +981,16 @@ def measure_codec_costs(n: int = 2000, signing: bool = False,
                         python_twin: bool = False) -> dict[str, tuple[float, float]]:
     """Median (encode_us, decode_us) per message type: encode = Codec.encode, decode = FrameParser.feed
     of one whole frame (a datagram). With `signing`, frames are signed and checked (throwaway key). With
-    `python_twin`, encode runs the Python even where the compiled encoder (frame_kernel) was built."""
+    `python_twin`, both run the Python even where the compiled twins (frame_kernel) were built."""
     limits = ActuatorLimits(0.6, (0.01, 0.01, 0.002))
     key = bytes(range(32))
     n = max(n, 10)
     results: dict[str, tuple[float, float]] = {}
     for msg in sample_messages():
         codec = Codec(1, 1, limits, Signing(key, 0) if signing else None)
-        if python_twin:
-            codec._kernel = None
         parser = FrameParser(limits, Signing(key, 0) if signing else None)
+        if python_twin:
+            codec._kernel = parser._kernel = None
         encode_us = _median_us(codec.encode, [msg] * n)
         frames = [codec.encode(msg) for _ in range(n)]  # fresh timestamps: no replay rejections
         decode_us = _median_us(_decode_datagram(parser), frames)

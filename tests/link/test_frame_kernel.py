@@ -1,14 +1,20 @@
-"""The compiled encoder of a tick's messages (link/mavlink/_frame_kernel.c) against its Python twin, codec.py's
-encoders and Codec._wrap: the same frames, byte for byte, or the same error; and what it leaves to the Python."""
+"""The compiled frame kernel (link/mavlink/_frame_kernel.c) against its Python twins: the encoder of a tick's
+messages against codec.py's encoders and Codec._wrap (the same frames, byte for byte, or the same error; and what
+it leaves to the Python), and parse_frames against FrameParser._scan (the same frames, fields, counters, pending
+bytes and observer calls, on streams of every kind of frame, garbage and damage)."""
 
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
+import struct
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mav
 
+from link.keys import GROUND_STATION_SYSTEM_ID
 from link.mavlink import codec, frame_kernel
 from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
 from link.mavlink.signing import Signing
@@ -172,3 +178,153 @@ def test_signed_frames_are_the_pythons():
 def test_bad_calls_raise_type_error(args):
     with pytest.raises(TypeError):
         frame_kernel.encode_frame(*args)
+
+
+# --- parse_frames against FrameParser._scan ----------------------------------------------------------------------
+
+
+def python_parser(monkeypatch, *args) -> FrameParser:
+    """A parser made while the kernel is absent: it scans with the Python twin only."""
+    with monkeypatch.context() as m:
+        m.setattr(frame_kernel, "parse_frames", None)
+        return FrameParser(*args)
+
+
+def raw_frame(msgid: int, payload: bytes, flags: int = 0, system_id: int = 1, seq: int = 0,
+              crc_extra: int | None = None, signature: bytes = b"") -> bytes:
+    """A MAVLink 2 frame built by hand (any header flags, payload length and CRC_EXTRA)."""
+    header = struct.pack("<BBBBBBHB", len(payload), flags, 0, seq, system_id, 1, msgid & 0xFFFF, msgid >> 16)
+    extra = mav.mavlink_map[msgid].crc_extra if crc_extra is None else crc_extra
+    crc = mav.x25crc(header + payload + bytes([extra])).crc
+    return b"\xfd" + header + payload + struct.pack("<H", crc) + signature
+
+
+def odometry_payload(rng: np.random.Generator, frame_id: int, child_frame_id: int) -> bytes:
+    return codec.W_ODOMETRY.unpacker.pack(int(rng.integers(0, 2**40)), *rng.normal(size=13).astype(float),
+                                          *(0.0,) * 42, frame_id, child_frame_id, 0, 0, 100)
+
+
+def random_piece(rng: np.random.Generator, sender: Codec) -> bytes:
+    """One frame of a kind the kernel decodes natively, one it hands to a Python decoder, or something damaged."""
+    roll = int(rng.integers(16))
+    if roll <= 3:  # the kernel's native kinds, as the emulator and the ground station send them
+        return sender.encode(random_message_plain(rng, [ImuSample, MocapPose, TruthState, ExternalPose][roll]), 1)
+    if roll == 4:  # everything else the codec speaks (its Python decoders, through the kernel)
+        return sender.encode(codec.sample_messages()[int(rng.integers(11))], 1)
+    if roll == 5:  # truth in another frame convention: unsupported
+        return raw_frame(codec.W_ODOMETRY.msgid, odometry_payload(rng, int(rng.integers(0, 3)), 1))
+    if roll == 6:  # zero-truncated payloads (IMU samples of zeros) and extended ones
+        zeros = sender.encode(ImuSample(float(rng.integers(0, 3)), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), 1)
+        return zeros if rng.random() < 0.5 else raw_frame(mav.MAVLINK_MSG_ID_TIMESYNC, bytes(16) + b"\x03\x04")
+    if roll == 7:  # bad header flags, an empty payload, a message the codec does not decode, an unknown id
+        return [raw_frame(mav.MAVLINK_MSG_ID_TIMESYNC, b"\x01", flags=0x02),
+                raw_frame(mav.MAVLINK_MSG_ID_TIMESYNC, b""),
+                raw_frame(mav.MAVLINK_MSG_ID_PING, bytes(14)),
+                raw_frame(60000, b"\x01\x02", crc_extra=0)][int(rng.integers(4))]
+    if roll == 8:  # signed-flag frames (this parser does not check signatures: delivered as unsigned)
+        return raw_frame(mav.MAVLINK_MSG_ID_TIMESYNC, struct.pack("<qq", 3, 4), flags=0x01,
+                         signature=bytes(rng.integers(0, 256, 13, dtype=np.uint8)))
+    if roll == 9:  # a decoder that hands back None (a heartbeat of an unknown mode) or raises (an infinite yaw)
+        unknown_mode = raw_frame(mav.MAVLINK_MSG_ID_HEARTBEAT, struct.pack("<IBBBBB", 99, 2, 0, 0, 3, 3))
+        infinite_yaw = raw_frame(codec.W_POSITION.msgid, codec.W_POSITION.unpacker.pack(
+            1, *(0.0,) * 9, math.inf, 0.0, codec._POSITION_TYPE_MASK, 1, 0, mav.MAV_FRAME_LOCAL_NED))
+        return unknown_mode if rng.random() < 0.5 else infinite_yaw
+    frame = bytearray(sender.encode(random_message_plain(rng, ImuSample), 1))
+    if roll == 10:  # a flipped bit
+        frame[int(rng.integers(len(frame)))] ^= 1 << int(rng.integers(8))
+    elif roll == 11:  # cut short
+        frame = frame[: int(rng.integers(1, len(frame)))]
+    elif roll == 12:  # stray bytes, magic bytes among them
+        frame = bytearray(rng.choice([0xFD, 0x00, 0x11, 0xFE], size=int(rng.integers(1, 9))).astype(np.uint8))
+    return bytes(frame)
+
+
+def random_message_plain(rng: np.random.Generator, kind: type):
+    """Plain values the kernel's native decoders see in flight (floats, times in range)."""
+    t = float(rng.uniform(0.0, 1e4))
+    v = [float(x) for x in rng.normal(size=16)]
+    if kind is ImuSample:
+        return ImuSample(t, tuple(v[0:3]), tuple(v[3:6]))
+    if kind is MocapPose:
+        return MocapPose(t, int(rng.integers(1, 255)), tuple(v[0:3]), tuple(v[3:7]))
+    if kind is ExternalPose:
+        return ExternalPose(t, tuple(v[0:3]), tuple(v[3:7]))
+    return TruthState(t, tuple(v[0:3]), tuple(v[3:6]), tuple(v[6:10]), tuple(v[10:13]))
+
+
+def bits(value):
+    """A value with every float as its IEEE bits (NaN == NaN), for comparing decoded messages exactly."""
+    if isinstance(value, float):
+        return ("float", struct.pack("<d", value))
+    if isinstance(value, (tuple, list)):
+        return tuple(bits(v) for v in value)
+    if isinstance(value, enum.Enum):
+        return (type(value).__name__, value.value)
+    if dataclasses.is_dataclass(value):
+        return (type(value).__name__, *(bits(getattr(value, f.name)) for f in dataclasses.fields(value)))
+    return (type(value).__name__, value)
+
+
+@pytest.mark.parametrize("final", [True, False], ids=["datagrams", "stream"])
+@pytest.mark.parametrize("with_limits", [True, False], ids=["limits", "no-limits"])
+def test_parse_frames_gives_what_the_python_scan_gives(monkeypatch, final, with_limits):
+    rng = np.random.default_rng(int(final) + 2 * int(with_limits))
+    limits = LIMITS if with_limits else None
+    compiled, python = FrameParser(limits), python_parser(monkeypatch, limits)
+    assert compiled._kernel is not None and python._kernel is None
+    observed = {"compiled": [], "python": []}
+    compiled.frame_observer = lambda *header: observed["compiled"].append(header)
+    python.frame_observer = lambda *header: observed["python"].append(header)
+    senders = [Codec(3, limits=LIMITS), Codec(GROUND_STATION_SYSTEM_ID, limits=LIMITS)]
+    delivered = 0
+    for _ in range(1500):
+        chunk = b"".join(random_piece(rng, senders[int(rng.integers(2))])
+                         for _ in range(int(rng.integers(1, 6))))
+        if not final and rng.random() < 0.5:  # a stream cuts anywhere
+            cut = int(rng.integers(0, len(chunk) + 1))
+            pieces = [chunk[:cut], chunk[cut:]]
+        else:
+            pieces = [chunk]
+        for piece in pieces:
+            got, expected = compiled.feed_fields(piece, final), python.feed_fields(piece, final)
+            assert bits(got) == bits(expected)
+            assert compiled.counters.as_dict() == python.counters.as_dict()
+            assert compiled._pending == python._pending
+            delivered += len(got)
+    assert observed["compiled"] == observed["python"] and observed["python"]
+    counts = compiled.counters.as_dict()
+    # every path was taken: decoded, unsupported, bad lengths and headers, unknown, CRC failures, cut short
+    for name in ("frames_ok", "unsupported_messages", "bad_lengths", "bad_headers", "unknown_messages", "crc_failures",
+                 "decode_errors"):
+        assert counts[name] > 0, name
+    assert counts["truncated_frames" if final else "garbage_bytes"] > 0
+    assert delivered > 1000
+
+
+def test_parse_frames_decodes_what_the_sender_meant():
+    """Native kinds through the kernel come out as the messages that went in, to float32."""
+    sender, parser = Codec(4, limits=LIMITS), FrameParser(LIMITS)
+    sent = [ImuSample(1.5, (0.25, -0.5, 9.75), (0.125, 0.0625, -1.0)),
+            TruthState(3.0, (1.0, -2.0, 0.5), (0.25, 0.5, -0.75), (1.0, 0.0, 0.0, 0.0), (0.5, -0.25, 1.0))]
+    got = [d.message for d in parser.feed(b"".join(sender.encode(m) for m in sent), final=True)]
+    assert [type(m) for m in got] == [ImuSample, TruthState]
+    for a, b in zip(got, sent, strict=True):
+        assert numbers(a) == pytest.approx(numbers(b), rel=1e-6, abs=1e-7)
+    pose = FrameParser(LIMITS).feed(Codec(GROUND_STATION_SYSTEM_ID).encode(
+        ExternalPose(2.0, (1.0, 2.0, 3.0), (1.0, 0.0, 0.0, 0.0)), 1), final=True)
+    assert isinstance(pose[0].message, ExternalPose)  # a mocap frame from the ground station: the vehicle's own pose
+
+
+def test_signed_parsers_scan_with_the_python():
+    assert FrameParser(LIMITS, Signing(bytes(range(32)), link_id=1))._kernel is None
+
+
+@pytest.mark.parametrize("args", [(), (FrameParser(), b"")])
+def test_bad_calls_to_parse_frames_raise_type_error(args):
+    with pytest.raises(TypeError):
+        frame_kernel.parse_frames(*args)
+
+
+def test_parse_frames_takes_bytes_only():
+    with pytest.raises(TypeError):
+        frame_kernel.parse_frames(FrameParser(), bytearray(b"\xfd"), True)
