@@ -493,9 +493,15 @@ static int undelivered(PyObject *parser, PyObject *counter, long system_id, long
    or `decode_error` set where it raised ValueError, TypeError or OverflowError; NULL for any other error */
 static PyObject *decode_python(PyObject *unpacker, PyObject *decoder, PyObject *source, Py_ssize_t offset,
                                long system_id, int *decode_error) {
-    PyObject *off = PyLong_FromSsize_t(offset), *sid = PyLong_FromLong(system_id);
-    PyObject *values = off && sid ? PyObject_CallMethodObjArgs(unpacker, s_unpack_from, source, off, NULL) : NULL;
-    PyObject *result = values == NULL ? NULL : PyObject_CallFunctionObjArgs(decoder, values, sid, NULL);
+    PyObject *off = PyLong_FromSsize_t(offset), *sid = PyLong_FromLong(system_id), *values = NULL, *result = NULL;
+    if (off != NULL && sid != NULL) {
+        PyObject *unpack_args[3] = {unpacker, source, off};
+        values = PyObject_VectorcallMethod(s_unpack_from, unpack_args, 3 | PY_VECTORCALL_ARGUMENTS_OFFSET, NULL);
+    }
+    if (values != NULL) {
+        PyObject *decode_args[2] = {values, sid};
+        result = PyObject_Vectorcall(decoder, decode_args, 2, NULL);
+    }
     Py_XDECREF(off);
     Py_XDECREF(sid);
     Py_XDECREF(values);

@@ -16,7 +16,7 @@ the position it scanned to, counting into the parser's counters and calling its 
 The Python is codec.py's encoders with Codec._wrap, and FrameParser._scan with codec.py's decoders; the kernels
 give their bytes, messages and counts (tests/link/test_frame_kernel.py). Why compiled: the emulator encodes about
 eleven frames per 100 Hz tick (42 us of its main thread per tick, a throwaway timing of the matched floor), and
-the ground station decodes six per 100 Hz tick on its critical path (the parser was 13.7 of the 26.9 us that
+the ground station decodes six per 100 Hz tick on its critical path (the parser was 13.3 of the 28.9 us that
 Endpoint.deliver took per six-frame chunk, warm: a throwaway timing).
 """
 

@@ -328,3 +328,9 @@ def test_bad_calls_to_parse_frames_raise_type_error(args):
 def test_parse_frames_takes_bytes_only():
     with pytest.raises(TypeError):
         frame_kernel.parse_frames(FrameParser(), bytearray(b"\xfd"), True)
+
+
+def test_measure_codec_costs_times_the_twins_in_turns():
+    costs = codec.measure_codec_costs(n=20, python_twin=True)
+    assert set(costs) == {type(m).__name__ for m in codec.sample_messages()}
+    assert all(len(values) == 4 and all(v > 0 for v in values) for values in costs.values())
