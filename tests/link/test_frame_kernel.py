@@ -18,7 +18,7 @@ from link.keys import GROUND_STATION_SYSTEM_ID
 from link.mavlink import codec, frame_kernel
 from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
 from link.mavlink.signing import Signing
-from link.messages import AttitudeTarget, ExternalPose, ImuSample, MocapPose, ThrustMoment, TruthState
+from link.messages import AttitudeTarget, ExternalPose, ImuSample, MocapPose, ThrustMoment, TimeSync, TruthState
 from model.vehicle import load_vehicle
 
 pytestmark = pytest.mark.skipif(not frame_kernel.COMPILED, reason="link.mavlink._frame_kernel was not built")
@@ -334,3 +334,15 @@ def test_measure_codec_costs_times_the_twins_in_turns():
     costs = codec.measure_codec_costs(n=20, python_twin=True)
     assert set(costs) == {type(m).__name__ for m in codec.sample_messages()}
     assert all(len(values) == 4 and all(v > 0 for v in values) for values in costs.values())
+
+
+def test_an_error_inside_the_scan_leaves_the_same_counts(monkeypatch):
+    """An observer that raises mid-chunk: feed_fields counts it and starts clean, the counts so far kept, in both."""
+    chunk = b"".join([Codec(3).encode(TimeSync(0, 1)), raw_frame(mav.MAVLINK_MSG_ID_PING, bytes(14)),
+                      Codec(3).encode(TimeSync(0, 2))])
+    parsers = [FrameParser(), python_parser(monkeypatch)]
+    for parser in parsers:
+        parser.frame_observer = lambda *header: 1 / 0
+        assert parser.feed_fields(chunk, True) == []
+    assert parsers[0].counters.as_dict() == parsers[1].counters.as_dict()
+    assert parsers[0].counters.decode_errors == 1 and parsers[0].counters.frames_ok == 1
