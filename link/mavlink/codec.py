@@ -985,6 +985,8 @@ def measure_codec_costs(n: int = 2000, signing: bool = False,
     of one whole frame (a datagram). With `signing`, frames are signed and checked (throwaway key). With
     `python_twin` (unsigned, where the compiled twins of link.mavlink.frame_kernel were built), also those of the
     Python twins, the two timed in turns: (encode_us, decode_us, python_encode_us, python_decode_us)."""
+    if signing and python_twin:
+        raise ValueError("measure_codec_costs: the Python twins are timed unsigned (the compiled ones take no signing)")
     limits = ActuatorLimits(0.6, (0.01, 0.01, 0.002))
     key = bytes(range(32))
     n = max(n, 10)

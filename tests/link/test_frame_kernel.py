@@ -334,6 +334,8 @@ def test_measure_codec_costs_times_the_twins_in_turns():
     costs = codec.measure_codec_costs(n=20, python_twin=True)
     assert set(costs) == {type(m).__name__ for m in codec.sample_messages()}
     assert all(len(values) == 4 and all(v > 0 for v in values) for values in costs.values())
+    with pytest.raises(ValueError):
+        codec.measure_codec_costs(n=20, signing=True, python_twin=True)
 
 
 def test_an_error_inside_the_scan_leaves_the_same_counts(monkeypatch):
