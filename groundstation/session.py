@@ -132,7 +132,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
             missing = [name for name, compiled in (("the estimator's kernels and timeline", eskf_kernels.COMPILED),
                                                    ("the latency compensator's steps", compensation_kernel.COMPILED),
                                                    ("the controller's report law", controller_kernel.COMPILED),
-                                                   ("the MAVLink encoder of a tick's frames", frame_kernel.COMPILED))
+                                                   ("the MAVLink frames' encoder and parser", frame_kernel.COMPILED))
                        if not compiled]
             if missing:
                 log.warning("ground station: %s not built (no C compiler at pip install?): the Python twins run, "

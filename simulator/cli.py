@@ -207,7 +207,7 @@ def emulator_command(argv: list[str]) -> int:
         missing = [name for name, compiled in (("the RK4 step and rotor lag", dynamics_kernels.COMPILED),
                                                ("the faithful firmware's drive chain", drive_kernel.COMPILED),
                                                ("the faithful firmware's attitude and rate PIDs", pid_kernel.COMPILED),
-                                               ("the MAVLink encoder of a tick's frames", frame_kernel.COMPILED))
+                                               ("the MAVLink frames' encoder and parser", frame_kernel.COMPILED))
                    if not compiled]
         if missing:
             log.warning("emulator: compiled kernels not built (no C compiler at pip install?): %s; their Python "
