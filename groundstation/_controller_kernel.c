@@ -30,36 +30,6 @@ enum {
     MAX_MX, MAX_MY, MAX_MZ, GRAVITY, DEGENERATE_NORM, N_USED,
 };
 
-/* n numbers of a float64 array (buffer protocol: no conversion) or of a sequence of floats into out; -1 with
-   the error set */
-static int read_vector(PyObject *obj, double *out, Py_ssize_t n, const char *name) {
-    if (PyObject_CheckBuffer(obj) && !PyTuple_Check(obj) && !PyList_Check(obj)) {
-        Py_buffer view;
-        if (PyObject_GetBuffer(obj, &view, PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) == 0) {
-            int ok = view.format != NULL && view.format[0] == 'd' && view.format[1] == '\0' && view.ndim == 1 &&
-                     view.len == n * (Py_ssize_t)sizeof(double);
-            if (ok) memcpy(out, view.buf, (size_t)n * sizeof(double));
-            PyBuffer_Release(&view);
-            if (ok) return 0;
-        } else {
-            PyErr_Clear();
-        }
-    }
-    /* a sequence of floats (numpy's float64 is one): anything else - ints, say, which Python's arithmetic
-       keeps exact - is left to the Python (ValueError set, handed back) */
-    PyObject *fast = PySequence_Fast(obj, name);
-    if (fast == NULL) return -1;
-    int ok = PySequence_Fast_GET_SIZE(fast) == n;
-    for (Py_ssize_t i = 0; ok && i < n; i++) {
-        PyObject *item = PySequence_Fast_GET_ITEM(fast, i);
-        ok = PyFloat_Check(item);
-        if (ok) out[i] = PyFloat_AS_DOUBLE(item);
-    }
-    Py_DECREF(fast);
-    if (!ok) PyErr_Format(PyExc_ValueError, "%s: expected %zd floats", name, n);
-    return ok ? 0 : -1;
-}
-
 /* Python's _clip(value, low, high) */
 static double clip(double value, double low, double high) {
     return value > high ? high : value < low ? low : value;
@@ -209,10 +179,10 @@ static PyObject *se3_update(PyObject *self, PyObject *const *args, Py_ssize_t na
     if (check_nargs("se3_update", nargs, 10)) return NULL;
     double p[3], v[3], q[4], w[3], rp[3], rv[3], ra[3], k[N_CONSTANTS];
     if (read_floats(args[8], k, N_USED, "constants")) return NULL;
-    int bad = read_vector(args[0], p, 3, "position") || read_vector(args[1], v, 3, "velocity") ||
-              read_vector(args[2], q, 4, "attitude") || read_vector(args[3], w, 3, "rate") ||
-              read_vector(args[4], rp, 3, "reference position") || read_vector(args[5], rv, 3, "reference velocity") ||
-              read_vector(args[6], ra, 3, "reference acceleration");
+    int bad = read_float_vector(args[0], p, 3, 0) || read_float_vector(args[1], v, 3, 0) ||
+              read_float_vector(args[2], q, 4, 0) || read_float_vector(args[3], w, 3, 0) ||
+              read_float_vector(args[4], rp, 3, 0) || read_float_vector(args[5], rv, 3, 0) ||
+              read_float_vector(args[6], ra, 3, 0);
     double psi = bad ? 0.0 : PyFloat_AsDouble(args[7]);
     Output o;
     if (bad || (psi == -1.0 && PyErr_Occurred()) || report_law(p, v, q, w, rp, rv, ra, psi, k, &o)) {

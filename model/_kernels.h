@@ -1,8 +1,8 @@
 /* What the compiled kernels (estimator/_eskf_kernels.c, simulator/_dynamics_kernels.c,
-   simulator/crazyflie/_drive_kernel.c, groundstation/_compensation_kernel.c, groundstation/_controller_kernel.c)
-   share: reading Python numbers into C doubles, building tuples and lists of floats, checking a call's argument
-   count, and model.frames' quat_to_rows and quat_normalize_positive_w. Included by each; setup.py lists it in
-   every extension's depends. */
+   simulator/crazyflie/_drive_kernel.c, groundstation/_compensation_kernel.c, groundstation/_controller_kernel.c,
+   link/mavlink/_frame_kernel.c) share: reading Python numbers into C doubles, building tuples and lists of floats,
+   checking a call's argument count, and model.frames' quat_to_rows and quat_normalize_positive_w. Included by
+   each; setup.py lists it in every extension's depends. */
 
 #ifndef CFSTACK_KERNELS_H
 #define CFSTACK_KERNELS_H
@@ -10,6 +10,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <string.h>
 
 /* n numbers of a sequence into out; -1 with ValueError (wrong length) or TypeError (not a number) set */
 static inline int read_floats(PyObject *seq, double *out, Py_ssize_t n, const char *name) {
@@ -31,6 +32,42 @@ static inline int read_floats(PyObject *seq, double *out, Py_ssize_t n, const ch
     }
     Py_DECREF(fast);
     return 0;
+}
+
+/* The first n numbers of a vector into out, where they are floats as they stand: a 1-D float64 buffer (a numpy
+   array, read without conversion) or a sequence of floats (numpy's float64 is one). 0, or 1 with no error set
+   where the vector is anything else (ints, say, whose arithmetic Python keeps exact; text; a set, a generator):
+   the caller leaves it to its Python twin. `at_least`: n or more items, as the Python's indexing reads them;
+   else exactly n, as its unpacking asks. */
+static inline int read_float_vector(PyObject *obj, double *out, Py_ssize_t n, int at_least) {
+    if (PyObject_CheckBuffer(obj)) {
+        Py_buffer view;
+        if (PyObject_GetBuffer(obj, &view, PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) == 0) {
+            Py_ssize_t count = view.len / (Py_ssize_t)sizeof(double);
+            int ok = view.format != NULL && strcmp(view.format, "d") == 0 && view.ndim == 1 &&
+                     (at_least ? count >= n : count == n);
+            if (ok) memcpy(out, view.buf, (size_t)n * sizeof(double));
+            PyBuffer_Release(&view);
+            if (ok) return 0;
+        } else {
+            PyErr_Clear(); /* not a contiguous buffer: read as a sequence */
+        }
+    }
+    if (!PySequence_Check(obj)) return 1; /* iterating a set or a generator would differ from (or spend) it */
+    PyObject *fast = PySequence_Fast(obj, "a vector");
+    if (fast == NULL) {
+        PyErr_Clear();
+        return 1;
+    }
+    Py_ssize_t count = PySequence_Fast_GET_SIZE(fast);
+    int ok = at_least ? count >= n : count == n;
+    for (Py_ssize_t i = 0; ok && i < n; i++) {
+        PyObject *item = PySequence_Fast_GET_ITEM(fast, i);
+        ok = PyFloat_Check(item);
+        if (ok) out[i] = PyFloat_AS_DOUBLE(item);
+    }
+    Py_DECREF(fast);
+    return ok ? 0 : 1;
 }
 
 /* module.name as a double, read once when a kernel module loads (a constant it shares with its twin);

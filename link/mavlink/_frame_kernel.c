@@ -77,42 +77,12 @@ static int read_float_attr(PyObject *msg, int attr, double *out) {
     return ok ? 0 : 1;
 }
 
-/* The first n numbers of the vector attribute attr into out: 0, or 1 where the Python might not do alike (fewer
-   than n items; with `exact`, as a tuple unpacking asks, other than n; an item that is not a float); -1 on error.
-   A 1-D float64 array is read through the buffer protocol, anything else as a sequence of floats. */
-static int read_vector_attr(PyObject *msg, int attr, double *out, Py_ssize_t n, int exact) {
+/* The first n numbers of the vector attribute attr into out (read_float_vector, `at_least` where the Python
+   indexes it): 0, or 1 where the Python might not do alike; -1 on error */
+static int read_vector_attr(PyObject *msg, int attr, double *out, Py_ssize_t n, int at_least) {
     PyObject *obj = PyObject_GetAttr(msg, attr_names[attr]);
     if (obj == NULL) return -1;
-    int result = 1;
-    if (PyObject_CheckBuffer(obj) && !PyBytes_Check(obj) && !PyByteArray_Check(obj)) {
-        Py_buffer view;
-        if (PyObject_GetBuffer(obj, &view, PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) == 0) {
-            Py_ssize_t count = view.len / (Py_ssize_t)sizeof(double);
-            if (view.format != NULL && strcmp(view.format, "d") == 0 && view.ndim == 1 &&
-                (exact ? count == n : count >= n)) {
-                memcpy(out, view.buf, (size_t)n * sizeof(double));
-                result = 0;
-            }
-            PyBuffer_Release(&view);
-        } else {
-            PyErr_Clear(); /* not a contiguous buffer: not ours to read */
-        }
-        Py_DECREF(obj);
-        return result;
-    }
-    if (PyTuple_Check(obj) || PyList_Check(obj)) {
-        Py_ssize_t count = PySequence_Fast_GET_SIZE(obj);
-        if (exact ? count == n : count >= n) {
-            PyObject **items = PySequence_Fast_ITEMS(obj);
-            result = 0;
-            for (Py_ssize_t i = 0; i < n && result == 0; i++) {
-                if (PyFloat_Check(items[i]))
-                    out[i] = PyFloat_AS_DOUBLE(items[i]);
-                else
-                    result = 1;
-            }
-        }
-    }
+    int result = read_float_vector(obj, out, n, at_least);
     Py_DECREF(obj);
     return result;
 }
@@ -191,8 +161,8 @@ static void put_quat_ned_frd(Payload *p, const double q[4]) {
 static int pack_imu(PyObject *msg, Payload *p) { /* _enc_imu */
     double t, f[3], w[3];
     READ(read_float_attr(msg, A_TIME, &t));
-    READ(read_vector_attr(msg, A_FORCE, f, 3, 1));
-    READ(read_vector_attr(msg, A_RATE, w, 3, 1));
+    READ(read_vector_attr(msg, A_FORCE, f, 3, 0));
+    READ(read_vector_attr(msg, A_RATE, w, 3, 0));
     put_time(p, t, 1e6, 18446744073709551616.0, 8);
     put_f32(p, f[0]);
     put_f32(p, -f[1]);
@@ -209,8 +179,8 @@ static int pack_imu(PyObject *msg, Payload *p) { /* _enc_imu */
 static int pack_mocap(PyObject *msg, Payload *p) { /* _enc_mocap (and _enc_external_pose through it) */
     double t, pos[3], q[4];
     READ(read_float_attr(msg, A_TIME, &t));
-    READ(read_vector_attr(msg, A_POSITION, pos, 3, 0));
-    READ(read_vector_attr(msg, A_ATTITUDE, q, 4, 1));
+    READ(read_vector_attr(msg, A_POSITION, pos, 3, 1));
+    READ(read_vector_attr(msg, A_ATTITUDE, q, 4, 0));
     put_time(p, t, 1e6, 18446744073709551616.0, 8);
     put_quat_ned_frd(p, q);
     put_f32(p, pos[1]);
@@ -223,10 +193,10 @@ static int pack_mocap(PyObject *msg, Payload *p) { /* _enc_mocap (and _enc_exter
 static int pack_truth(PyObject *msg, Payload *p) { /* _enc_truth */
     double t, pos[3], vel[3], q[4], w[3];
     READ(read_float_attr(msg, A_TIME, &t));
-    READ(read_vector_attr(msg, A_POSITION, pos, 3, 0));
-    READ(read_vector_attr(msg, A_VELOCITY, vel, 3, 0));
-    READ(read_vector_attr(msg, A_RATE, w, 3, 0));
-    READ(read_vector_attr(msg, A_ATTITUDE, q, 4, 1));
+    READ(read_vector_attr(msg, A_POSITION, pos, 3, 1));
+    READ(read_vector_attr(msg, A_VELOCITY, vel, 3, 1));
+    READ(read_vector_attr(msg, A_RATE, w, 3, 1));
+    READ(read_vector_attr(msg, A_ATTITUDE, q, 4, 0));
     put_time(p, t, 1e6, 18446744073709551616.0, 8);
     put_f32(p, pos[1]);
     put_f32(p, pos[0]);
@@ -247,7 +217,7 @@ static int pack_thrust_moment(PyObject *msg, const double *limits, long target, 
     double t, thrust, m[3];
     READ(read_float_attr(msg, A_TIME, &t));
     READ(read_float_attr(msg, A_THRUST, &thrust));
-    READ(read_vector_attr(msg, A_MOMENT, m, 3, 1));
+    READ(read_vector_attr(msg, A_MOMENT, m, 3, 0));
     put_time(p, t, 1e6, 18446744073709551616.0, 8);
     put_f32(p, m[0] / limits[0]);
     put_f32(p, -m[1] / limits[1]);
@@ -265,8 +235,8 @@ static int pack_attitude_target(PyObject *msg, const double *limits, long target
     double t, thrust, q[4], rates[3];
     READ(read_float_attr(msg, A_TIME, &t));
     READ(read_float_attr(msg, A_THRUST, &thrust));
-    READ(read_vector_attr(msg, A_ATTITUDE, q, 4, 1));
-    READ(read_vector_attr(msg, A_RATES, rates, 3, 0));
+    READ(read_vector_attr(msg, A_ATTITUDE, q, 4, 0));
+    READ(read_vector_attr(msg, A_RATES, rates, 3, 1));
     put_time(p, t, 1e3, 4294967296.0, 4);
     put_quat_ned_frd(p, q);
     put_f32(p, rates[0]); /* flu_to_frd */

@@ -62,7 +62,8 @@ def random_vector(rng: np.random.Generator, n: int):
     elif roll < 0.08:
         values = values[:-1]
     if rng.random() < 0.15:
-        return np.array([float(v) for v in values], dtype=np.float32 if rng.random() < 0.2 else np.float64)
+        array = np.array([float(v) for v in values], dtype=np.float32 if rng.random() < 0.2 else np.float64)
+        return array if rng.random() < 0.7 else np.repeat(array, 2)[::2]  # or a strided view: no contiguous buffer
     return list(values) if rng.random() < 0.2 else tuple(values)
 
 
