@@ -522,13 +522,15 @@ static int decode_frame(PyObject *parser, PyObject *buf, const unsigned char *b,
         if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "parse_frames: a wire's size is out of range");
         return -1;
     }
-    const unsigned char *payload = b + i + HEADER_LEN;
-    unsigned char extended[MAX_PAYLOAD]; /* a zero-truncated payload reads as zero-extended (MAVLink 2) */
-    memset(extended, 0, (size_t)size);
-    memcpy(extended, payload, (size_t)(plen < size ? plen : size));
     int native = -1;
     for (int k = 0; k < N_NATIVE; k++)
         if (decoder == native_decoder[k] && size == NATIVE_SIZE[k]) native = k;
+    /* a zero-truncated payload reads as zero-extended (MAVLink 2); a whole one goes to unpack_from as it is */
+    unsigned char extended[MAX_PAYLOAD];
+    if (native >= 0 || plen < size) {
+        memset(extended, 0, (size_t)size);
+        memcpy(extended, b + i + HEADER_LEN, (size_t)(plen < size ? plen : size));
+    }
     PyObject *message, *target, *result = NULL;
     int decode_error = 0;
     if (native >= 0) {
@@ -773,7 +775,8 @@ static PyMethodDef methods[] = {
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_frame_kernel",
-    "Compiled twin of the MAVLink encoder of a tick's messages (link.mavlink.frame_kernel).", -1, methods,
+    "Compiled twins of the MAVLink encoder of a tick's messages and of the parser (link.mavlink.frame_kernel).", -1,
+    methods,
 };
 
 PyMODINIT_FUNC PyInit__frame_kernel(void) {
