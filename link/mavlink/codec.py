@@ -468,8 +468,8 @@ def _limit_values(limits: ActuatorLimits | None) -> tuple[float, float, float, f
     floats (the Python's arithmetic on other numbers is left to the Python)."""
     if limits is None:
         return None
-    values = (*limits.max_moment_nm, limits.max_thrust_n)
-    return values if len(values) == 4 and all(type(v) is float for v in values) else None
+    values = (*limits.max_moment_nm, limits.max_thrust_n)  # ActuatorLimits holds three moments
+    return values if all(type(v) is float for v in values) else None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -645,12 +645,11 @@ class Codec:
             source = msg.body_id
             if not 1 <= source <= 255:
                 raise ValueError(f"MocapPose.body_id {source} out of range 1..255 (it is the system id)")
-        kernel = self._kernel
-        if kernel is not None and kind in KERNEL_KINDS:
+        code = KERNEL_KINDS.get(kind) if self._kernel is not None else None
+        if code is not None:
             sequence = self._sequence
             seq = sequence.get(source, 0)
-            frame = kernel(KERNEL_KINDS[kind], msg, seq, source, self.component_id, target_system,
-                           self._limit_values)
+            frame = self._kernel(code, msg, seq, source, self.component_id, target_system, self._limit_values)
             if frame is not None:
                 sequence[source] = (seq + 1) & 0xFF
                 return frame
