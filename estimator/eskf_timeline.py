@@ -1,6 +1,7 @@
 """The ESKF's timeline: every sample on a buffer sorted by sample time, the filter state after each, the
 rollback and replay a late sample needs (estimator.eskf's module docstring, "Time bookkeeping" on, has the
-equations and the rules). In Python here; estimator/_eskf_timeline.c is its compiled twin.
+equations and the rules). In Python here; estimator/_eskf_timeline.h (built into estimator._eskf_kernels) is
+its compiled twin.
 
 Takes in: a TimelineConfig (the filter's numbers: gravity, IMU period, sub-step and buffer lengths, gate,
 re-initialisation rules, R's diagonal, the initial covariance's diagonal, the process noise densities), and
@@ -116,7 +117,8 @@ class _Node:
 
 
 class Timeline:
-    """The Python twin. Callers (ErrorStateKF) validate samples and hold poses seen before the first IMU."""
+    """The Python twin. It checks the samples given as messages (add_imu_sample, add_mocap_pose); its caller
+    (ErrorStateKF) holds the poses seen before the first IMU sample."""
 
     def __init__(self, config: TimelineConfig):
         self.c = config
