@@ -205,9 +205,6 @@ static struct PyModuleDef module = {
 };
 
 PyMODINIT_FUNC PyInit__controller_kernel(void) {
-    for (int i = 0; i < 11; i++) {
-        field_names[i] = PyUnicode_InternFromString(FIELD_NAMES[i]);
-        if (field_names[i] == NULL) return NULL;
-    }
+    if (intern_names(FIELD_NAMES, field_names, 11) < 0) return NULL;
     return PyModule_Create(&module);
 }

@@ -112,6 +112,15 @@ static inline int check_nargs(const char *kernel, Py_ssize_t nargs, Py_ssize_t e
     return -1;
 }
 
+/* Intern each of n attribute names into out (a module's lookups by interned name); -1 with the error set. */
+static inline int intern_names(const char *const *texts, PyObject **out, int n) {
+    for (int i = 0; i < n; i++) {
+        out[i] = PyUnicode_InternFromString(texts[i]);
+        if (out[i] == NULL) return -1;
+    }
+    return 0;
+}
+
 /* model.frames.quat_to_rows */
 static inline void quat_to_rows(const double q[4], double r[9]) {
     double w = q[0], x = q[1], y = q[2], z = q[3];

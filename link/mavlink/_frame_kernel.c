@@ -780,14 +780,8 @@ static struct PyModuleDef module = {
 };
 
 PyMODINIT_FUNC PyInit__frame_kernel(void) {
-    for (int i = 0; i < N_ATTRS; i++) {
-        attr_names[i] = PyUnicode_InternFromString(ATTR_NAMES[i]);
-        if (attr_names[i] == NULL) return NULL;
-    }
-    for (int i = 0; i < N_COUNTS; i++) {
-        count_names[i] = PyUnicode_InternFromString(COUNT_NAMES[i]);
-        if (count_names[i] == NULL) return NULL;
-    }
+    if (intern_names(ATTR_NAMES, attr_names, N_ATTRS) < 0 || intern_names(COUNT_NAMES, count_names, N_COUNTS) < 0)
+        return NULL;
     PyObject **names[7] = {&s_counters, &s_wires, &s_undelivered, &s_unpack_from, &s_unsupported, &s_bad_lengths,
                            &s_decode_errors};
     const char *texts[7] = {"counters", "_wires", "_undelivered", "unpack_from", "unsupported_messages", "bad_lengths",

@@ -17,7 +17,7 @@ min and max are Python's (the first argument unless the second compares beyond i
 Python's does), and int() of a finite double within +-32767 truncates toward zero in both.
 tests/simulator/test_pid_kernel.py checks the bits against the Python. */
 
-#include "../../model/_kernels.h" /* includes Python.h; check_nargs */
+#include "../../model/_kernels.h" /* includes Python.h; check_nargs, intern_names */
 
 #define N_AXES 3
 #define INT16_LIMIT 32767.0 /* attitude_controller.INT16_MAX: saturateSignedInt16's bound */
@@ -148,9 +148,6 @@ static PyMethodDef methods[] = {
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_pid_kernel", NULL, -1, methods};
 
 PyMODINIT_FUNC PyInit__pid_kernel(void) {
-    for (int i = 0; i < N_FIELDS; i++) {
-        field_names[i] = PyUnicode_InternFromString(FIELD_NAMES[i]);
-        if (field_names[i] == NULL) return NULL;
-    }
+    if (intern_names(FIELD_NAMES, field_names, N_FIELDS) < 0) return NULL;
     return PyModule_Create(&module);
 }
