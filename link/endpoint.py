@@ -15,10 +15,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from link import deliver_kernel
 from link.mavlink.codec import Codec, FrameParser
-from link.mavlink.tlog import TlogWriter
+from link.mavlink.tlog import RECORD_HEADER_LEN, TlogWriter
 from link.messages import Message, Received
-from link.stats import LinkStats
+from link.stats import REORDER_WINDOW, SEQUENCE_MODULUS, LinkStats
 from link.transports.base import Transport
 
 STREAM_SCHEMES = frozenset({"serial"})  # transports that deliver byte chunks rather than whole frames
@@ -79,20 +80,10 @@ class Endpoint:
             return []
         received_s = self.clock()
         decode = self.parser.feed_fields  # tuples, not Decoded records: each frame becomes a Received here
-        final = self.datagram
-        record = self.stats.record_frame
-        tlog = self.tlog
+        final, stats, tlog = self.datagram, self.stats, self.tlog
         out: list[Received] = []
         for chunk in chunks:
-            for message, system_id, component_id, sequence, msgid, signed, frame, target, _ in decode(chunk, final):
-                verdict = record(system_id, component_id, sequence, len(frame), received_s,
-                                 getattr(message, "time_s", None))
-                if tlog is not None:
-                    tlog.write(frame)
-                extra = {"component_id": component_id, "target_system": target, "msgid": msgid}
-                if verdict != "new":
-                    extra["sequence"] = verdict
-                out.append(Received(message, system_id, sequence, received_s, signed, extra))
+            _deliver_fields(decode(chunk, final), stats, tlog, received_s, out)
         return out
 
     def close(self) -> None:
@@ -108,3 +99,23 @@ class Endpoint:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def deliver_fields(fields: list[tuple], stats: LinkStats, tlog: TlogWriter | None, received_s: float,
+                   out: list[Received]) -> None:
+    """Each frame of `fields` (FrameParser.feed_fields' tuples) counted into `stats`, written to `tlog` and appended
+    to `out` as a Received stamped received_s (the compiled twin: link.deliver_kernel)."""
+    record = stats.record_frame
+    for message, system_id, component_id, sequence, msgid, signed, frame, target, _ in fields:
+        verdict = record(system_id, component_id, sequence, len(frame), received_s, getattr(message, "time_s", None))
+        if tlog is not None:
+            tlog.write(frame)
+        extra = {"component_id": component_id, "target_system": target, "msgid": msgid}
+        if verdict != "new":
+            extra["sequence"] = verdict
+        out.append(Received(message, system_id, sequence, received_s, signed, extra))
+
+
+if deliver_kernel.COMPILED:
+    deliver_kernel.configure(Received, SEQUENCE_MODULUS, REORDER_WINDOW, RECORD_HEADER_LEN)
+_deliver_fields = deliver_kernel.deliver_fields if deliver_kernel.COMPILED else deliver_fields

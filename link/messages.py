@@ -245,9 +245,13 @@ Message = (
 )
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Received:
-    """A decoded message and what the link knows about the frame that carried it."""
+    """A decoded message and what the link knows about the frame that carried it.
+
+    Not frozen, unlike the messages: an endpoint makes one per frame received (the ground station about eleven per
+    100 Hz tick, six on its critical path), and a frozen dataclass sets each field through object.__setattr__ (0.92
+    us per record against 0.26 with slots, `python -m timeit`). Nobody changes one once it is delivered."""
 
     message: Message
     system_id: int

@@ -33,6 +33,7 @@ from link.mavlink.codec import (
 from model.errors import UserError
 
 _TIMESTAMP = struct.Struct(">Q")
+RECORD_HEADER_LEN = _TIMESTAMP.size  # the bytes a record adds to its frame
 
 
 def _record(stamp_s: float, frame: bytes) -> bytes:
@@ -65,7 +66,7 @@ class TlogWriter:
             raise ValueError(f"{self.path}: tlog is closed")
         stamp_s = self.clock() if time_s is None else time_s
         self.frames_written += 1
-        self.bytes_written += _TIMESTAMP.size + len(frame)
+        self.bytes_written += RECORD_HEADER_LEN + len(frame)
         if self._buffer is not None:  # packed at flush(), off the caller's critical path
             self._buffer.append((stamp_s, frame if type(frame) is bytes else bytes(frame)))  # a copy if mutable
         else:
