@@ -345,13 +345,15 @@ class FlightLoop:
         truth_vals = None
         if truth is not None:
             truth_vals = (*truth.position_enu_m, *truth.velocity_enu_mps, *truth.attitude_wxyz)
+        # numpy vectors as Python floats, each in one tolist(): unpacking makes a numpy scalar per value, and
+        # the log formats floats faster (a row of floats 11 us, of these 14; unpacking 5 us, tolist 1.6: timeit)
         est_vals = sigma = None
         if est is not None:
-            est_vals = (*est.position_enu_m, *est.velocity_enu_mps, *est.attitude_wxyz)
-            sigma = tuple(est.std_dev[:9])
+            est_vals = (*est.position_enu_m.tolist(), *est.velocity_enu_mps.tolist(), *est.attitude_wxyz.tolist())
+            sigma = tuple(est.std_dev[:9].tolist())
         ref = None
         if step.reference is not None:
-            ref = (*step.reference.position_m, *step.reference.velocity_mps)
+            ref = (*step.reference.position_m.tolist(), *step.reference.velocity_mps.tolist())
         moment = attitude = None
         if out is not None:
             moment = (out.thrust_n, *out.moment_flu_nm)
