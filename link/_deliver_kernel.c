@@ -17,7 +17,7 @@ Gives out: None, having appended to the list. An error raises as the Python rais
 configure (called once by link.endpoint at import) takes the Received class, link.stats' SEQUENCE_MODULUS and
 REORDER_WINDOW, and link.mavlink.tlog's RECORD_HEADER_LEN. tests/link/test_deliver_kernel.py compares the twins. */
 
-/* includes Python.h and math.h; check_nargs, intern_names */
+/* includes Python.h and math.h; check_nargs, intern_names, add_to_attr */
 #include "../model/_kernels.h"
 #include <limits.h>
 
@@ -36,20 +36,6 @@ static PyObject *names[N_NAMES];
 
 static PyObject *received_type = NULL;
 static long long sequence_modulus = 0, reorder_window = 0, record_header_len = 0;
-
-/* obj.name += delta, as Python's augmented assignment does it (get, add, set) */
-static int add_to_attr(PyObject *obj, PyObject *name, long long delta) {
-    PyObject *value = PyObject_GetAttr(obj, name);
-    if (value == NULL) return -1;
-    PyObject *step = PyLong_FromLongLong(delta);
-    PyObject *sum = step == NULL ? NULL : PyNumber_Add(value, step);
-    Py_DECREF(value);
-    Py_XDECREF(step);
-    if (sum == NULL) return -1;
-    int rc = PyObject_SetAttr(obj, name, sum);
-    Py_DECREF(sum);
-    return rc;
-}
 
 /* getattr(message, "time_s", None): a new reference, None included; NULL on an error other than AttributeError */
 static PyObject *sample_time(PyObject *message) {

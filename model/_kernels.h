@@ -1,8 +1,9 @@
 /* What the compiled kernels (estimator/_eskf_kernels.c, simulator/_dynamics_kernels.c,
    simulator/crazyflie/_drive_kernel.c, groundstation/_compensation_kernel.c, groundstation/_controller_kernel.c,
-   link/mavlink/_frame_kernel.c) share: reading Python numbers into C doubles, building tuples and lists of floats,
-   checking a call's argument count, and model.frames' quat_to_rows and quat_normalize_positive_w. Included by
-   each; setup.py lists it in every extension's depends. */
+   link/mavlink/_frame_kernel.c, link/_deliver_kernel.c) share: reading Python numbers into C doubles, building
+   tuples and lists of floats, checking a call's argument count, interning attribute names, adding to an int
+   attribute, and model.frames' quat_to_rows and quat_normalize_positive_w. Included by each; setup.py lists it in
+   every extension's depends. */
 
 #ifndef CFSTACK_KERNELS_H
 #define CFSTACK_KERNELS_H
@@ -110,6 +111,20 @@ static inline int check_nargs(const char *kernel, Py_ssize_t nargs, Py_ssize_t e
     if (nargs == expected) return 0;
     PyErr_Format(PyExc_TypeError, "%s takes %zd arguments (%zd given)", kernel, expected, nargs);
     return -1;
+}
+
+/* obj.name += delta, as Python's augmented assignment does it (get, add, set); -1 with the error set */
+static inline int add_to_attr(PyObject *obj, PyObject *name, long long delta) {
+    PyObject *value = PyObject_GetAttr(obj, name);
+    if (value == NULL) return -1;
+    PyObject *step = PyLong_FromLongLong(delta);
+    PyObject *sum = step == NULL ? NULL : PyNumber_Add(value, step);
+    Py_DECREF(value);
+    Py_XDECREF(step);
+    if (sum == NULL) return -1;
+    int rc = PyObject_SetAttr(obj, name, sum);
+    Py_DECREF(sum);
+    return rc;
 }
 
 /* Intern each of n attribute names into out (a module's lookups by interned name); -1 with the error set. */

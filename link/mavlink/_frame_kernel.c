@@ -30,7 +30,7 @@ Same bytes and bits as the Python: every number is the Python expression's, one 
 as PyFloat_Unpack4 does, times rounded as Python's round() rounds (half to even) and divided as Python divides an
 int by a float. tests/link/test_frame_kernel.py compares the twins. */
 
-/* includes Python.h and math.h; check_nargs */
+/* includes Python.h and math.h; check_nargs, read_float_vector, intern_names, add_to_attr */
 #include "../../model/_kernels.h"
 #include <stdint.h>
 #include <string.h>
@@ -358,23 +358,15 @@ static PyObject *native_decoder[N_NATIVE];
 static PyObject *imu_type, *mocap_type, *external_pose_type, *truth_type;
 static long ground_station_id, frame_local_ned;
 static int parser_configured = 0;
-static PyObject *s_counters, *s_wires, *s_undelivered, *s_unpack_from, *s_unsupported, *s_bad_lengths,
-    *s_decode_errors;
+/* The parser's attributes and methods, and the counters it names to _undelivered */
+enum { S_COUNTERS, S_WIRES, S_UNDELIVERED, S_UNPACK_FROM, S_UNSUPPORTED, S_BAD_LENGTHS, S_DECODE_ERRORS, N_NAMES };
+static const char *NAME_TEXTS[N_NAMES] = {"counters", "_wires", "_undelivered", "unpack_from",
+                                          "unsupported_messages", "bad_lengths", "decode_errors"};
+static PyObject *names[N_NAMES];
 
 static int flush_counts(PyObject *counters, const long long counts[N_COUNTS]) {
-    for (int k = 0; k < N_COUNTS; k++) {
-        if (counts[k] == 0) continue;
-        PyObject *old = PyObject_GetAttr(counters, count_names[k]);
-        if (old == NULL) return -1;
-        PyObject *delta = PyLong_FromLongLong(counts[k]);
-        PyObject *sum = delta == NULL ? NULL : PyNumber_Add(old, delta);
-        Py_DECREF(old);
-        Py_XDECREF(delta);
-        if (sum == NULL) return -1;
-        int status = PyObject_SetAttr(counters, count_names[k], sum);
-        Py_DECREF(sum);
-        if (status < 0) return -1;
-    }
+    for (int k = 0; k < N_COUNTS; k++)
+        if (counts[k] != 0 && add_to_attr(counters, count_names[k], counts[k]) < 0) return -1;
     return 0;
 }
 
@@ -450,8 +442,9 @@ static PyObject *decode_native(int kind, const unsigned char *b, long system_id)
 /* parser._undelivered(counter, system id, component id, sequence); -1 with the error set */
 static int undelivered(PyObject *parser, PyObject *counter, long system_id, long component_id, long sequence) {
     PyObject *sid = PyLong_FromLong(system_id), *cid = PyLong_FromLong(component_id), *seq = PyLong_FromLong(sequence);
-    PyObject *out = sid && cid && seq ? PyObject_CallMethodObjArgs(parser, s_undelivered, counter, sid, cid, seq, NULL)
-                                      : NULL;
+    PyObject *out = sid && cid && seq
+                        ? PyObject_CallMethodObjArgs(parser, names[S_UNDELIVERED], counter, sid, cid, seq, NULL)
+                        : NULL;
     Py_XDECREF(sid);
     Py_XDECREF(cid);
     Py_XDECREF(seq);
@@ -466,7 +459,7 @@ static PyObject *decode_python(PyObject *unpacker, PyObject *decoder, PyObject *
     PyObject *off = PyLong_FromSsize_t(offset), *sid = PyLong_FromLong(system_id), *values = NULL, *result = NULL;
     if (off != NULL && sid != NULL) {
         PyObject *unpack_args[3] = {unpacker, source, off};
-        values = PyObject_VectorcallMethod(s_unpack_from, unpack_args, 3 | PY_VECTORCALL_ARGUMENTS_OFFSET, NULL);
+        values = PyObject_VectorcallMethod(names[S_UNPACK_FROM], unpack_args, 3 | PY_VECTORCALL_ARGUMENTS_OFFSET, NULL);
     }
     if (values != NULL) {
         PyObject *decode_args[2] = {values, sid};
@@ -538,7 +531,7 @@ static int decode_frame(PyObject *parser, PyObject *buf, const unsigned char *b,
         if (message == NULL) return -1;
         if (message == Py_None) {
             Py_DECREF(message);
-            return undelivered(parser, s_unsupported, sid, cid, seq);
+            return undelivered(parser, names[S_UNSUPPORTED], sid, cid, seq);
         }
         target = PyLong_FromLong(0);
         if (target == NULL) {
@@ -551,10 +544,10 @@ static int decode_frame(PyObject *parser, PyObject *buf, const unsigned char *b,
         if (source == NULL) return -1;
         result = decode_python(unpacker, decoder, source, plen >= size ? i + HEADER_LEN : 0, sid, &decode_error);
         Py_DECREF(source);
-        if (result == NULL) return decode_error ? undelivered(parser, s_decode_errors, sid, cid, seq) : -1;
+        if (result == NULL) return decode_error ? undelivered(parser, names[S_DECODE_ERRORS], sid, cid, seq) : -1;
         if (result == Py_None) {
             Py_DECREF(result);
-            return undelivered(parser, s_unsupported, sid, cid, seq);
+            return undelivered(parser, names[S_UNSUPPORTED], sid, cid, seq);
         }
         PyObject *pair = PySequence_Fast(result, "a decoder returns (message, target)");
         Py_DECREF(result);
@@ -598,8 +591,8 @@ static PyObject *parse_frames(PyObject *self, PyObject *const *args, Py_ssize_t 
     }
     int final = PyObject_IsTrue(args[2]);
     if (final < 0) return NULL;
-    PyObject *counters = PyObject_GetAttr(parser, s_counters);
-    PyObject *wires = counters == NULL ? NULL : PyObject_GetAttr(parser, s_wires);
+    PyObject *counters = PyObject_GetAttr(parser, names[S_COUNTERS]);
+    PyObject *wires = counters == NULL ? NULL : PyObject_GetAttr(parser, names[S_WIRES]);
     PyObject *out = wires == NULL ? NULL : PyList_New(0);
     if (out == NULL || !PyDict_Check(wires)) {
         if (wires != NULL && !PyDict_Check(wires))
@@ -669,11 +662,11 @@ static PyObject *parse_frames(PyObject *self, PyObject *const *args, Py_ssize_t 
             continue;
         }
         if (PyTuple_GET_ITEM(wire, 3) == Py_None) {
-            failed = undelivered(parser, s_unsupported, sid, cid, seq) < 0;
+            failed = undelivered(parser, names[S_UNSUPPORTED], sid, cid, seq) < 0;
             continue;
         }
         if (plen == 0) {
-            failed = undelivered(parser, s_bad_lengths, sid, cid, seq) < 0;
+            failed = undelivered(parser, names[S_BAD_LENGTHS], sid, cid, seq) < 0;
             continue;
         }
         failed = decode_frame(parser, buf, b, i, end, n, wire, plen, sid, cid, seq, msgid, counts, out) < 0;
@@ -780,15 +773,8 @@ static struct PyModuleDef module = {
 };
 
 PyMODINIT_FUNC PyInit__frame_kernel(void) {
-    if (intern_names(ATTR_NAMES, attr_names, N_ATTRS) < 0 || intern_names(COUNT_NAMES, count_names, N_COUNTS) < 0)
+    if (intern_names(ATTR_NAMES, attr_names, N_ATTRS) < 0 || intern_names(COUNT_NAMES, count_names, N_COUNTS) < 0 ||
+        intern_names(NAME_TEXTS, names, N_NAMES) < 0)
         return NULL;
-    PyObject **names[7] = {&s_counters, &s_wires, &s_undelivered, &s_unpack_from, &s_unsupported, &s_bad_lengths,
-                           &s_decode_errors};
-    const char *texts[7] = {"counters", "_wires", "_undelivered", "unpack_from", "unsupported_messages", "bad_lengths",
-                            "decode_errors"};
-    for (int i = 0; i < 7; i++) {
-        *names[i] = PyUnicode_InternFromString(texts[i]);
-        if (*names[i] == NULL) return NULL;
-    }
     return PyModule_Create(&module);
 }
