@@ -40,6 +40,7 @@ from groundstation.mission import Mission, load_mission_params
 from groundstation.tickframe import Displays
 from groundstation.trajectory import Trajectory
 from groundstation.vehicle_link import VehicleLink
+from link import deliver_kernel
 from link.keys import VehicleKeys
 from link.mavlink import frame_kernel
 from link.mavlink.codec import ActuatorLimits
@@ -132,7 +133,8 @@ def run_session(opts: SessionOptions) -> SessionResult:
             missing = [name for name, compiled in (("the estimator's kernels and timeline", eskf_kernels.COMPILED),
                                                    ("the latency compensator's steps", compensation_kernel.COMPILED),
                                                    ("the controller's report law", controller_kernel.COMPILED),
-                                                   ("the MAVLink frames' encoder and parser", frame_kernel.COMPILED))
+                                                   ("the MAVLink frames' encoder and parser", frame_kernel.COMPILED),
+                                                   ("the link's per-frame delivery", deliver_kernel.COMPILED))
                        if not compiled]
             if missing:
                 log.warning("ground station: %s not built (no C compiler at pip install?): the Python twins run, "
