@@ -116,7 +116,7 @@ def test_the_kernel_delivers_what_the_python_delivers(tmp_path, seed, tlog_kind,
     assert len(state["age_s"]) == (0 if offset_s is None and not shared_clock else timed)
 
 
-def test_an_age_is_receive_time_minus_sample_time_minus_offset(tmp_path):
+def test_an_age_is_receive_time_minus_sample_time_minus_offset():
     """The arithmetic of LinkStats' definition, from the kernel (not just equal to the twin's)."""
     fields = FrameParser(Codec(system_id=RECEIVER_ID, limits=LIMITS)).feed_fields(
         Codec(system_id=1, limits=LIMITS).encode(ImuSample(2.5, (0.0, 0.0, 9.81), (0.0, 0.0, 0.0)), RECEIVER_ID),
@@ -129,7 +129,7 @@ def test_an_age_is_receive_time_minus_sample_time_minus_offset(tmp_path):
     assert out[0].received_s == 3.0 and out[0].system_id == 1 and out[0].message.time_s == 2.5
 
 
-def test_a_message_time_that_is_not_a_float_gets_python_arithmetic(tmp_path):
+def test_a_message_time_that_is_not_a_float_gets_python_arithmetic():
     """An int time (exact in Python) is left to Python's own subtraction, in both twins."""
     fields = FrameParser(Codec(system_id=RECEIVER_ID, limits=LIMITS)).feed_fields(
         Codec(system_id=1, limits=LIMITS).encode(ImuSample(2.0, (0.0, 0.0, 9.81), (0.0, 0.0, 0.0)), RECEIVER_ID),
