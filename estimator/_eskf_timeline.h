@@ -731,9 +731,10 @@ static PyObject *tl_predict(TimelineObject *tl, PyObject *const *args, Py_ssize_
     return Py_BuildValue("(NN)", xs, ws);
 }
 
-static PyObject *tl_health_values(TimelineObject *tl, PyObject *Py_UNUSED(ignored)) {
+/* a new dict of the counters by name (the twin's dict(zip(COUNTERS, counts))); NULL with the error set */
+static PyObject *counts_dict(TimelineObject *tl, const char *method) {
     if (tl->counter_names == NULL) {
-        PyErr_SetString(PyExc_RuntimeError, "Timeline.health_values: the timeline was not made (__init__ failed)");
+        PyErr_Format(PyExc_RuntimeError, "Timeline.%s: the timeline was not made (__init__ failed)", method);
         return NULL;
     }
     PyObject *counts = PyDict_New();
@@ -747,12 +748,43 @@ static PyObject *tl_health_values(TimelineObject *tl, PyObject *Py_UNUSED(ignore
             return NULL;
         }
     }
+    return counts;
+}
+
+static PyObject *tl_health_values(TimelineObject *tl, PyObject *Py_UNUSED(ignored)) {
+    PyObject *counts = counts_dict(tl, "health_values");
+    if (counts == NULL) return NULL;
     PyObject *newest = tl->n ? PyFloat_FromDouble(tl->nodes[tl->n - 1]->t) : Py_NewRef(Py_None);
     if (newest == NULL) {
         Py_DECREF(counts);
         return NULL;
     }
     return Py_BuildValue("(NdlN)", newest, tl->last_accepted_s, tl->consecutive_rejections, counts);
+}
+
+/* The twin's newest_state: newest(P_out), then fill_state(x, w, P, values_out, std_out) - values = x, then
+   w - b_g (-b_g without a signal), std = sqrt(diag P) - then health_values' last three. */
+#define N_VALUES (N_STATE + 3) /* estimator.eskf_timeline.N_VALUES: x, then the rate */
+#define GYRO_BIAS 13            /* b_g's first index in x (p, v, q wxyz, b_a, b_g) */
+static PyObject *tl_newest_state(TimelineObject *tl, PyObject *const *args, Py_ssize_t nargs) {
+    static const MatrixArg outputs[] = {
+        {0, SQUARE, 1, "P_out"}, {1, N_VALUES, 1, "values_out"}, {2, N_ERR, 1, "std_out"}};
+    if (check_nargs("newest_state", nargs, 3) < 0 || require_nodes(tl, "newest_state") < 0) return NULL;
+    Py_buffer views[3];
+    if (get_matrices(args, outputs, 3, views) < 0) return NULL;
+    const Node *node = tl->nodes[tl->n - 1];
+    double *P = views[0].buf, *values = views[1].buf, *std = views[2].buf;
+    memcpy(P, covariance_at(tl, tl->n - 1), SQUARE * sizeof(double));
+    memcpy(values, node->x, N_STATE * sizeof(double));
+    for (int i = 0; i < 3; i++) {
+        double bias = node->x[GYRO_BIAS + i];
+        values[N_STATE + i] = node->has_signal ? node->w[i] - bias : -bias;
+    }
+    for (int i = 0; i < N_ERR; i++) std[i] = sqrt(P[i * N_ERR + i]);
+    release_all(views, 3);
+    PyObject *counts = counts_dict(tl, "newest_state");
+    if (counts == NULL) return NULL;
+    return Py_BuildValue("(ddlN)", node->t, tl->last_accepted_s, tl->consecutive_rejections, counts);
 }
 
 static PyObject *tl_get_empty(TimelineObject *tl, void *Py_UNUSED(closure)) { return PyBool_FromLong(tl->n == 0); }
@@ -866,6 +898,8 @@ static PyMethodDef tl_methods[] = {
     {"add_mocap_pose", (PyCFunction)tl_add_mocap_pose, METH_O, "add_mocap_pose(pose) -> bool, None: not started"},
     {"queue_mocap", (PyCFunction)(void (*)(void))tl_queue_mocap, METH_FASTCALL, "queue_mocap(t, position, attitude)"},
     {"newest", (PyCFunction)tl_newest, METH_O, "newest(P_out) -> (t, x, w)"},
+    {"newest_state", (PyCFunction)(void (*)(void))tl_newest_state, METH_FASTCALL,
+     "newest_state(P_out, values_out, std_out) -> (t, last accepted, rejections in a row, counters)"},
     {"predict", (PyCFunction)(void (*)(void))tl_predict, METH_FASTCALL, "predict(t, P_out) -> (x, w) or None"},
     {"health_values", (PyCFunction)tl_health_values, METH_NOARGS, "health_values() -> (newest, last accepted, "
                                                                   "rejections in a row, counters)"},

@@ -88,9 +88,11 @@ from estimator import eskf_timeline
 from estimator.eskf_timeline import (
     MOCAP_STATES,
     N_ERROR,
+    N_VALUES,
     NOT_STARTED,
     STALE_IMU,
     TimelineConfig,
+    fill_state,
     pose_valid,
     pose_values,
 )
@@ -282,9 +284,10 @@ class ErrorStateKF:
             if self._timeline.empty:
                 self._estimate = self._nan_estimate()
             else:
-                P = np.empty((N_ERROR, N_ERROR))
-                t, x, w = self._timeline.newest(P)
-                self._estimate = self._make_estimate(t, x, P, w)
+                P, values, std = np.empty((N_ERROR, N_ERROR)), np.empty(N_VALUES), np.empty(N_ERROR)
+                t, last_accepted_s, in_a_row, counts = self._timeline.newest_state(P, values, std)
+                self._estimate = self._make_estimate(t, values, P, std,
+                                                     self._health(t, last_accepted_s, in_a_row, counts))
         return self._estimate
 
     def predict_to(self, t_s: float) -> Estimate:
@@ -301,11 +304,16 @@ class ErrorStateKF:
         if predicted is None:
             return self.estimate()
         x, w = predicted
-        return self._make_estimate(float(t_s), x, P, w)
+        values, std = np.empty(N_VALUES), np.empty(N_ERROR)
+        fill_state(x, w, P, values, std)
+        return self._make_estimate(float(t_s), values, P, std, self.health())
 
     def health(self) -> EstimatorHealth:
         """Counters and flags (see EstimatorHealth); also inside every Estimate."""
-        newest_s, last_accepted_s, in_a_row, counts = self._timeline.health_values()
+        return self._health(*self._timeline.health_values())
+
+    def _health(self, newest_s: float | None, last_accepted_s: float, in_a_row: int, counts: dict) -> EstimatorHealth:
+        """EstimatorHealth from the timeline's health values (health_values' four; counts is filled in)."""
         # A frame from the future (queued until the IMU catches up) must not make the age negative.
         age = math.inf if newest_s is None else max(0.0, newest_s - last_accepted_s)
         counts["initialised"] = newest_s is not None
@@ -332,14 +340,10 @@ class ErrorStateKF:
 
     # ------------------------------------------------------------------ output
 
-    def _make_estimate(self, t: float, x: tuple, P: np.ndarray, w) -> Estimate:
-        """One array for the 16 state numbers and the rate, sliced into the fields (one conversion). P is
-        the caller's new array: the Estimate keeps it."""
-        health = self.health()
-        bgx, bgy, bgz = x[13], x[14], x[15]
-        rate = (w[0] - bgx, w[1] - bgy, w[2] - bgz) if w is not None else (-bgx, -bgy, -bgz)
-        values = np.array((*x, *rate))
-        std = np.sqrt(P.diagonal())
+    def _make_estimate(self, t: float, values: np.ndarray, P: np.ndarray, std: np.ndarray,
+                       health: EstimatorHealth) -> Estimate:
+        """The Estimate of fill_state's arrays (values: the 16 state numbers and the rate, sliced into the
+        fields; std: P's standard deviations). They are the caller's new arrays: the Estimate keeps them."""
         sx, sy, sz = std[0:3].tolist()
         limit = self.params.max_position_sigma_m
         healthy = (not health.blackout) and sx <= limit and sy <= limit and sz <= limit

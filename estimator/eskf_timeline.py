@@ -10,7 +10,9 @@ an invalid one counted and dropped), or already checked as plain floats (time s 
 specific force FLU m/s^2 and rate FLU rad/s; position ENU m and unit attitude wxyz with w >= 0).
 Gives out: the newest node's time, nominal state (16 floats: p ENU m, v ENU m/s, q wxyz, b_a FLU m/s^2,
 b_g FLU rad/s) and IMU rate, its covariance written into a caller's (15, 15) float64 array; the same one
-step ahead (predict); whether a frame was accepted; the counters of COUNTERS.
+step ahead (predict); whether a frame was accepted; the counters of COUNTERS. newest_state gives what an
+estimate needs in one call, into the caller's arrays: the covariance, the state with the bias-corrected rate
+(N_VALUES floats) and the standard deviations, with the health values.
 
 Why a class of its own with a compiled twin (issue 19): in attitude mode the ground station adds five IMU
 samples and a mocap frame per tick on the lockstep's critical path, and with the kernels compiled this
@@ -40,6 +42,7 @@ from model.frames import attitude_error, quat_exp, quat_multiply, quat_normalize
 
 N_ERROR = 15
 N_STATE = 16
+N_VALUES = N_STATE + 3  # an estimate's numbers in one array: the nominal state, then the bias-corrected rate
 MOCAP_STATES = (0, 1, 2, 6, 7, 8)  # the error states a mocap frame measures (position, attitude): H
 # The timeline's counters, in this order in both twins (EstimatorHealth's fields of the same names).
 COUNTERS = ("accepted_mocap", "rejected_outliers", "reinitialisations", "duplicate_mocap", "stale_mocap",
@@ -48,6 +51,16 @@ COUNTERS = ("accepted_mocap", "rejected_outliers", "reinitialisations", "duplica
  LOST_IMU, REORDERED_IMU, STALE_IMU, DUPLICATE_IMU, INVALID_IMU) = range(len(COUNTERS))
 # What add_imu_sample did with a sample (the compiled twin returns the same numbers).
 TAKEN, INVALID, NOT_STARTED = range(3)
+
+
+def fill_state(x: tuple, w: tuple | None, P: np.ndarray, values_out: np.ndarray, std_out: np.ndarray) -> None:
+    """values_out (N_VALUES) <- the nominal state x, then the rate w - b_g (-b_g before the first IMU sample,
+    w None); std_out (N_ERROR) <- the square roots of P's diagonal. The compiled twin's newest_state does the
+    same operations (one IEEE subtraction per rate component, a correctly rounded square root)."""
+    bgx, bgy, bgz = x[13], x[14], x[15]
+    values_out[:N_STATE] = x
+    values_out[N_STATE:] = (w[0] - bgx, w[1] - bgy, w[2] - bgz) if w is not None else (-bgx, -bgy, -bgz)
+    np.sqrt(P.diagonal(), out=std_out)
 
 
 def _flat(cells) -> np.ndarray:
@@ -221,6 +234,16 @@ class Timeline:
         node = self._nodes[last]
         P_out[...] = self._covariance_at(last)
         return node.time_s, node.x, node.w
+
+    def newest_state(self, P_out: np.ndarray, values_out: np.ndarray,
+                     std_out: np.ndarray) -> tuple[float, float, int, dict]:
+        """What an estimate of the newest node needs, in one call: its covariance into P_out, fill_state's
+        values and standard deviations into values_out and std_out; returns (its time, then health_values'
+        last three: newest accepted frame's time, rejections in a row, the counters by name)."""
+        t, x, w = self.newest(P_out)
+        fill_state(x, w, P_out, values_out, std_out)
+        _, last_accepted_s, in_a_row, counts = self.health_values()
+        return t, last_accepted_s, in_a_row, counts
 
     def predict(self, t: float, P_out: np.ndarray) -> tuple[tuple, tuple] | None:
         """(state, IMU rate) one step from the newest node to t holding its IMU signal, the covariance

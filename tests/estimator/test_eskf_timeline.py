@@ -22,7 +22,7 @@ from synthetic import Flight, LinkFaults, simulate  # noqa: E402
 
 from estimator import eskf  # noqa: E402
 from estimator.eskf import ErrorStateKF, EstimatorHealth  # noqa: E402
-from estimator.eskf_timeline import COUNTERS, INVALID, N_ERROR, NOT_STARTED, TAKEN, Timeline  # noqa: E402
+from estimator.eskf_timeline import COUNTERS, INVALID, N_ERROR, N_VALUES, NOT_STARTED, TAKEN, Timeline  # noqa: E402
 from estimator.sensor_spec import SensorSpec  # noqa: E402
 from link.messages import ImuSample, MocapPose  # noqa: E402
 from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle  # noqa: E402
@@ -150,6 +150,8 @@ def test_compiled_timeline_refuses_bad_calls_with_one_error():
         timeline.add_imu(0.0, (0.0, 0.0, 9.8), (0.0, 0.0, 0.0))
     with pytest.raises(RuntimeError, match="empty"):
         timeline.newest(np.empty((N_ERROR, N_ERROR)))
+    with pytest.raises(RuntimeError, match="empty"):
+        timeline.newest_state(np.empty((N_ERROR, N_ERROR)), np.empty(N_VALUES), np.empty(N_ERROR))
     with pytest.raises(ValueError, match="x: expected 16 numbers"):
         timeline.initialise(0.0, (0.0,) * 15)
     timeline.initialise(0.0, (0.0,) * 6 + (1.0,) + (0.0,) * 9)
@@ -161,6 +163,10 @@ def test_compiled_timeline_refuses_bad_calls_with_one_error():
         timeline.add_imu(0.004, (0.0, 9.8), (0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="P_out must be a C-contiguous float64 array of 225"):
         timeline.newest(np.empty((N_ERROR, N_ERROR), dtype=np.float32))
+    with pytest.raises(ValueError, match="values_out must be a C-contiguous float64 array of 19"):
+        timeline.newest_state(np.empty((N_ERROR, N_ERROR)), np.empty(16), np.empty(N_ERROR))
+    with pytest.raises(TypeError):
+        timeline.newest_state(np.empty((N_ERROR, N_ERROR)), np.empty(N_VALUES))
     with pytest.raises(TypeError):
         timeline.add_mocap(0.001, (0.0, 0.0, 0.0))
     with pytest.raises(IndexError):
@@ -207,3 +213,32 @@ def test_samples_as_they_arrive_are_checked_the_same_by_both_twins(twin):
     assert timeline.add_mocap_pose(dataclasses.replace(pose, time_s=None, attitude_wxyz=("1",))) is False
     with pytest.raises(AttributeError):
         timeline.add_mocap_pose(hover)  # not a pose
+
+
+@pytest.mark.parametrize("twin", ["compiled", "python"])
+def test_newest_state_is_the_newest_node_with_the_bias_corrected_rate_and_the_standard_deviations(twin):
+    """newest_state by its definition, from newest() and health_values() of the same twin: the covariance,
+    the nominal state, then the newest gyro sample minus the gyro bias (minus the bias alone before the first
+    sample), the square root of each variance, and the health values after the newest node's time."""
+    if twin == "compiled" and eskf.CompiledTimeline is None:
+        pytest.skip("estimator/_eskf_kernels.c was not built: no compiled twin")
+    timeline = (eskf.CompiledTimeline if twin == "compiled" else Timeline)(ErrorStateKF(SPEC, 500.0).config)
+    gyro_bias = (0.01, -0.02, 0.03)
+    timeline.initialise(0.0, (0.5, -0.2, 1.0, 0.0, 0.0, 0.0, 1.0) + (0.0,) * 6 + gyro_bias)
+
+    def check(rate_expected):
+        P, values, std = np.empty((N_ERROR, N_ERROR)), np.empty(N_VALUES), np.empty(N_ERROR)
+        t, last_accepted_s, in_a_row, counts = timeline.newest_state(P, values, std)
+        P_newest = np.empty((N_ERROR, N_ERROR))
+        t_newest, x, _ = timeline.newest(P_newest)
+        assert t == t_newest and np.array_equal(P, P_newest) and values[:16].tolist() == list(x)
+        assert values[16:].tolist() == [rate_expected[i] - x[13 + i] for i in range(3)]
+        assert std.tolist() == [math.sqrt(P_newest[i, i]) for i in range(N_ERROR)]
+        assert (t, last_accepted_s, in_a_row, counts) == (t, *timeline.health_values()[1:])
+
+    check((0.0, 0.0, 0.0))  # no IMU sample yet: the rate is -b_g
+    rate = (0.4, -0.3, 0.2)
+    for k in range(1, 6):
+        timeline.add_imu(0.002 * k, (0.0, 0.0, GRAVITY_MPS2), rate)
+    timeline.add_mocap(0.009, (0.5, -0.2, 1.0), (1.0, 0.0, 0.0, 0.0))
+    check(rate)
