@@ -75,12 +75,13 @@ before any conversion) and its `pack` (5.1 us). Rules:
 
 from __future__ import annotations
 
+import inspect
 import math
 import statistics
 import struct
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, is_dataclass
 
 # The v20 dialect module speaks MAVLink 2 whatever MAVLINK20 says (only mavutil reads that variable).
 from pymavlink.dialects.v20 import common as mav
@@ -922,6 +923,18 @@ def _parser_table(limits: ActuatorLimits | None) -> dict[int, tuple]:
     return table
 
 
+def direct_fields(cls: type) -> tuple[str, ...] | None:
+    """The field names, in order, of a message class whose generated __init__ does nothing but set them (a frozen
+    dataclass: object.__setattr__ of each field, in order; no __post_init__, no InitVar, no field left out of
+    __init__), so the frame kernel may make its instances that way itself; None: the kernel calls the class."""
+    if not is_dataclass(cls) or not cls.__dataclass_params__.frozen or hasattr(cls, "__post_init__"):
+        return None
+    names = tuple(f.name for f in fields(cls))
+    if not all(f.init for f in fields(cls)) or tuple(inspect.signature(cls).parameters) != names:
+        return None
+    return names
+
+
 # The compiled twins (link.mavlink.frame_kernel) take this module's constants and decoders once
 if frame_kernel.COMPILED:
     frame_kernel.configure(
@@ -933,7 +946,8 @@ if frame_kernel.COMPILED:
         (W_ATTITUDE.msgid, W_ATTITUDE.crc_extra[0], b"", 0),
     )
     frame_kernel.configure_parser(_dec_imu, _dec_mocap, _dec_truth, ImuSample, MocapPose, ExternalPose, TruthState,
-                                  GROUND_STATION_SYSTEM_ID, mav.MAV_FRAME_LOCAL_NED)
+                                  GROUND_STATION_SYSTEM_ID, mav.MAV_FRAME_LOCAL_NED,
+                                  *(direct_fields(m) for m in (ImuSample, MocapPose, ExternalPose, TruthState)))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -4,7 +4,8 @@ need no signature check (FrameParser._scan).
 
 Takes in: link.mavlink.codec configures both once with its own constants (`configure`: sqrt(1/2), and per wire the
 message id, CRC_EXTRA and the fixed bytes after the state; `configure_parser`: the decoders the parser runs natively,
-the messages they make, the ground station's system id and MAV_FRAME_LOCAL_NED). Then `encode_frame` takes the kind
+the messages they make, the ground station's system id and MAV_FRAME_LOCAL_NED, and per message its
+codec.direct_fields: made as its __init__ would make it, without running it). Then `encode_frame` takes the kind
 (its index in KINDS), the message, the sequence number, source system id, component id, target system and the
 codec's limits (max moments and max thrust as four floats, or None); `parse_frames` takes the parser, the bytes
 to scan (its pending bytes first) and whether they end a datagram.

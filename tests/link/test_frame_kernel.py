@@ -349,3 +349,87 @@ def test_an_error_inside_the_scan_leaves_the_same_counts(monkeypatch):
         assert parser.feed_fields(chunk, True) == []
     assert parsers[0].counters.as_dict() == parsers[1].counters.as_dict()
     assert parsers[0].counters.decode_errors == 1 and parsers[0].counters.frames_ok == 1
+
+
+def test_direct_fields_names_only_classes_whose_init_just_sets_them():
+    """The kernel may skip __init__ only where __init__ is the frozen dataclass's own: each field set, in order."""
+    assert codec.direct_fields(ImuSample) == ("time_s", "specific_force_flu_mps2", "rate_flu_radps")
+    assert codec.direct_fields(MocapPose) == ("time_s", "body_id", "position_enu_m", "attitude_wxyz")
+    assert codec.direct_fields(ExternalPose) == ("time_s", "position_enu_m", "attitude_wxyz")
+    assert codec.direct_fields(TruthState) == tuple(f.name for f in dataclasses.fields(TruthState))
+
+    @dataclasses.dataclass(frozen=True)
+    class Checked:
+        time_s: float
+
+        def __post_init__(self):
+            raise ValueError
+
+    @dataclasses.dataclass(frozen=True)
+    class Derived:
+        time_s: float
+        twice: float = dataclasses.field(init=False, default=0.0)
+
+    @dataclasses.dataclass(frozen=True)
+    class WithInitVar:
+        time_s: float
+        scale: dataclasses.InitVar[float]
+
+    @dataclasses.dataclass
+    class Mutable:
+        time_s: float
+
+    for cls in (Checked, Derived, WithInitVar, Mutable, tuple):
+        assert codec.direct_fields(cls) is None, cls
+
+
+def native_frames(rng: np.random.Generator) -> bytes:
+    """Frames of the four kinds the kernel makes itself, from a vehicle and from the ground station."""
+    vehicle, ground = Codec(3, limits=LIMITS), Codec(GROUND_STATION_SYSTEM_ID, limits=LIMITS)
+    frames = [vehicle.encode(random_message_plain(rng, kind), 1) for kind in (ImuSample, MocapPose, TruthState) * 20]
+    frames += [ground.encode(random_message_plain(rng, ExternalPose), 1) for _ in range(20)]
+    return b"".join(frames)
+
+
+def test_the_kernel_makes_messages_as_their_init_makes_them(monkeypatch):
+    """Made without running __init__, a message is the one __init__ makes: same class, same instance dict (no
+    attribute more or less, the same values), equal, same hash, and still frozen."""
+    data = native_frames(np.random.default_rng(7))
+    compiled, python = FrameParser(LIMITS), python_parser(monkeypatch, LIMITS)
+    got = [d.message for d in compiled.feed(data, final=True)]
+    expected = [d.message for d in python.feed(data, final=True)]
+    assert len(got) == len(expected) == 80
+    assert {type(m) for m in got} == {ImuSample, MocapPose, TruthState, ExternalPose}
+    for a, b in zip(got, expected, strict=True):
+        assert type(a) is type(b) and bits(vars(a)) == bits(vars(b)) and list(vars(a)) == list(vars(b))
+        assert a == b and hash(a) == hash(b)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            a.time_s = 0.0
+
+
+def configure_parser_with(fields: list) -> None:
+    frame_kernel.configure_parser(codec._dec_imu, codec._dec_mocap, codec._dec_truth, ImuSample, MocapPose,
+                                  ExternalPose, TruthState, GROUND_STATION_SYSTEM_ID, mav.MAV_FRAME_LOCAL_NED, *fields)
+
+
+def test_without_direct_fields_the_kernel_calls_the_classes(monkeypatch):
+    """Configured with None for every message, the kernel calls each class (its __init__ runs) and gives the same
+    messages; a wrong field tuple is refused with one error and leaves the configuration as it was."""
+    data = native_frames(np.random.default_rng(8))
+    expected = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
+    direct = [codec.direct_fields(m) for m in (ImuSample, MocapPose, ExternalPose, TruthState)]
+    calls = []
+    original_init = ImuSample.__init__
+    monkeypatch.setattr(ImuSample, "__init__", lambda self, *a: (calls.append(a), original_init(self, *a))[1])
+    try:
+        configure_parser_with([None] * 4)
+        got = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
+        with pytest.raises(ValueError, match="message 1's fields must be None or a tuple of 4 names"):
+            configure_parser_with([direct[0], ("time_s",), None, None])
+        again = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
+    finally:
+        configure_parser_with(direct)
+    assert bits(got) == bits(expected) == bits(again)
+    assert len(calls) == 2 * sum(isinstance(m, ImuSample) for m in expected) == 40
+    restored = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
+    assert bits(restored) == bits(expected) and len(calls) == 40  # made directly again: no __init__ ran
