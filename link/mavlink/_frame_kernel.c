@@ -728,13 +728,19 @@ static PyObject *configure_parser(PyObject *self, PyObject *const *args, Py_ssiz
     (void)self;
     if (check_nargs("configure_parser", nargs, 13) < 0) return NULL;
     for (int m = 0; m < N_MESSAGES; m++) { /* checked before anything is taken */
-        PyObject *fields = args[9 + m];
+        PyObject *fields = args[9 + m], *cls = args[3 + m];
         int ok = fields == Py_None || (PyTuple_Check(fields) && PyTuple_GET_SIZE(fields) == MESSAGE_FIELDS[m]);
         for (Py_ssize_t k = 0; ok && fields != Py_None && k < MESSAGE_FIELDS[m]; k++)
             ok = PyUnicode_Check(PyTuple_GET_ITEM(fields, k));
         if (!ok) {
             PyErr_Format(PyExc_ValueError, "configure_parser: message %d's fields must be None or a tuple of %zd "
                          "names", m, MESSAGE_FIELDS[m]);
+            return NULL;
+        }
+        /* made with object.__new__: only a class that takes object's own __new__ */
+        if (fields != Py_None && (!PyType_Check(cls) || ((PyTypeObject *)cls)->tp_new != PyBaseObject_Type.tp_new)) {
+            PyErr_Format(PyExc_ValueError, "configure_parser: message %d has fields but is not a class made by "
+                         "object.__new__", m);
             return NULL;
         }
     }

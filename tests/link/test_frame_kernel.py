@@ -414,7 +414,8 @@ def configure_parser_with(fields: list) -> None:
 
 def test_without_direct_fields_the_kernel_calls_the_classes(monkeypatch):
     """Configured with None for every message, the kernel calls each class (its __init__ runs) and gives the same
-    messages; a wrong field tuple is refused with one error and leaves the configuration as it was."""
+    messages; a wrong field tuple, or fields for a class object.__new__ cannot make, is refused with one error and
+    leaves the configuration as it was."""
     data = native_frames(np.random.default_rng(8))
     expected = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
     direct = [codec.direct_fields(m) for m in (ImuSample, MocapPose, ExternalPose, TruthState)]
@@ -426,6 +427,10 @@ def test_without_direct_fields_the_kernel_calls_the_classes(monkeypatch):
         got = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
         with pytest.raises(ValueError, match="message 1's fields must be None or a tuple of 4 names"):
             configure_parser_with([direct[0], ("time_s",), None, None])
+        with pytest.raises(ValueError, match="message 0 has fields but is not a class made by object.__new__"):
+            frame_kernel.configure_parser(codec._dec_imu, codec._dec_mocap, codec._dec_truth, tuple, MocapPose,
+                                          ExternalPose, TruthState, GROUND_STATION_SYSTEM_ID, mav.MAV_FRAME_LOCAL_NED,
+                                          ("a", "b", "c"), None, None, None)
         again = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
     finally:
         configure_parser_with(direct)
