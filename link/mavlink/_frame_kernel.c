@@ -358,12 +358,11 @@ static PyObject *count_names[N_COUNTS];
 enum { NATIVE_IMU, NATIVE_MOCAP, NATIVE_TRUTH, N_NATIVE };
 static const Py_ssize_t NATIVE_SIZE[N_NATIVE] = {63, 120, 233}; /* HIGHRES_IMU, ATT_POS_MOCAP, ODOMETRY */
 static PyObject *native_decoder[N_NATIVE];
-static PyObject *imu_type, *mocap_type, *external_pose_type, *truth_type;
-/* Per message, its fields' names where the kernel may make it itself (codec.direct_fields), else NULL: the class
-   is called */
+/* The messages they make (ImuSample, MocapPose, ExternalPose, TruthState) and, per message, its fields' names where
+   the kernel may make it itself (codec.direct_fields), else NULL: the class is called */
 enum { M_IMU, M_MOCAP, M_EXTERNAL_POSE, M_TRUTH, N_MESSAGES };
 static const Py_ssize_t MESSAGE_FIELDS[N_MESSAGES] = {3, 4, 3, 5};
-static PyObject *message_fields[N_MESSAGES];
+static PyObject *message_type[N_MESSAGES], *message_fields[N_MESSAGES];
 static PyObject *no_args; /* () for object.__new__ */
 static long ground_station_id, frame_local_ned;
 static int parser_configured = 0;
@@ -421,7 +420,6 @@ static PyObject *set_fields(PyObject *cls, PyObject *fields, PyObject *const *va
 
 /* Message `which` (M_*) of (time, then the other arguments, stolen); NULL with the error set */
 static PyObject *make(int which, double t, int n, PyObject **args) {
-    static PyObject **const types[N_MESSAGES] = {&imu_type, &mocap_type, &external_pose_type, &truth_type};
     PyObject *call[6];
     int ok = 1;
     call[0] = PyFloat_FromDouble(t);
@@ -429,7 +427,7 @@ static PyObject *make(int which, double t, int n, PyObject **args) {
         call[k + 1] = args[k];
         ok = ok && args[k] != NULL;
     }
-    PyObject *out = NULL, *cls = *types[which], *fields = message_fields[which];
+    PyObject *out = NULL, *cls = message_type[which], *fields = message_fields[which];
     if (ok && call[0] != NULL)
         out = fields != NULL ? set_fields(cls, fields, call) : PyObject_Vectorcall(cls, call, (size_t)(n + 1), NULL);
     for (int k = 0; k <= n; k++) Py_XDECREF(call[k]);
@@ -745,7 +743,8 @@ static PyObject *configure_parser(PyObject *self, PyObject *const *args, Py_ssiz
         }
     }
     PyObject **slots[7] = {&native_decoder[NATIVE_IMU], &native_decoder[NATIVE_MOCAP], &native_decoder[NATIVE_TRUTH],
-                           &imu_type, &mocap_type, &external_pose_type, &truth_type};
+                           &message_type[M_IMU], &message_type[M_MOCAP], &message_type[M_EXTERNAL_POSE],
+                           &message_type[M_TRUTH]};
     for (int k = 0; k < 7; k++) {
         if (!PyCallable_Check(args[k])) {
             PyErr_SetString(PyExc_TypeError, "configure_parser: the decoders and messages must be callables");

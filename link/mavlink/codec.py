@@ -929,8 +929,9 @@ def direct_fields(cls: type) -> tuple[str, ...] | None:
     __init__), so the frame kernel may make its instances that way itself; None: the kernel calls the class."""
     if not is_dataclass(cls) or not cls.__dataclass_params__.frozen or hasattr(cls, "__post_init__"):
         return None
-    names = tuple(f.name for f in fields(cls))
-    if not all(f.init for f in fields(cls)) or tuple(inspect.signature(cls).parameters) != names:
+    declared = fields(cls)
+    names = tuple(f.name for f in declared)
+    if not all(f.init for f in declared) or tuple(inspect.signature(cls).parameters) != names:
         return None
     return names
 

@@ -407,9 +407,12 @@ def test_the_kernel_makes_messages_as_their_init_makes_them(monkeypatch):
             a.time_s = 0.0
 
 
-def configure_parser_with(fields: list) -> None:
-    frame_kernel.configure_parser(codec._dec_imu, codec._dec_mocap, codec._dec_truth, ImuSample, MocapPose,
-                                  ExternalPose, TruthState, GROUND_STATION_SYSTEM_ID, mav.MAV_FRAME_LOCAL_NED, *fields)
+NATIVE_MESSAGES = (ImuSample, MocapPose, ExternalPose, TruthState)  # the order configure_parser takes them in
+
+
+def configure_parser_with(fields: list, messages: tuple = NATIVE_MESSAGES) -> None:
+    frame_kernel.configure_parser(codec._dec_imu, codec._dec_mocap, codec._dec_truth, *messages,
+                                  GROUND_STATION_SYSTEM_ID, mav.MAV_FRAME_LOCAL_NED, *fields)
 
 
 def test_without_direct_fields_the_kernel_calls_the_classes(monkeypatch):
@@ -418,7 +421,7 @@ def test_without_direct_fields_the_kernel_calls_the_classes(monkeypatch):
     leaves the configuration as it was."""
     data = native_frames(np.random.default_rng(8))
     expected = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
-    direct = [codec.direct_fields(m) for m in (ImuSample, MocapPose, ExternalPose, TruthState)]
+    direct = [codec.direct_fields(m) for m in NATIVE_MESSAGES]
     calls = []
     original_init = ImuSample.__init__
     monkeypatch.setattr(ImuSample, "__init__", lambda self, *a: (calls.append(a), original_init(self, *a))[1])
@@ -428,9 +431,7 @@ def test_without_direct_fields_the_kernel_calls_the_classes(monkeypatch):
         with pytest.raises(ValueError, match="message 1's fields must be None or a tuple of 4 names"):
             configure_parser_with([direct[0], ("time_s",), None, None])
         with pytest.raises(ValueError, match="message 0 has fields but is not a class made by object.__new__"):
-            frame_kernel.configure_parser(codec._dec_imu, codec._dec_mocap, codec._dec_truth, tuple, MocapPose,
-                                          ExternalPose, TruthState, GROUND_STATION_SYSTEM_ID, mav.MAV_FRAME_LOCAL_NED,
-                                          ("a", "b", "c"), None, None, None)
+            configure_parser_with([("a", "b", "c"), None, None, None], (tuple, *NATIVE_MESSAGES[1:]))
         again = [d.message for d in FrameParser(LIMITS).feed(data, final=True)]
     finally:
         configure_parser_with(direct)
