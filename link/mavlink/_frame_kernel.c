@@ -720,8 +720,9 @@ static PyObject *parse_frames(PyObject *self, PyObject *const *args, Py_ssize_t 
 }
 
 /* The parser's constants: the Python decoders decoded natively (codec._dec_imu, _dec_mocap, _dec_truth), the
-   messages they make (ImuSample, MocapPose, ExternalPose, TruthState), the ground station's system id and
-   MAV_FRAME_LOCAL_NED */
+   messages they make (ImuSample, MocapPose, ExternalPose, TruthState), the ground station's system id,
+   MAV_FRAME_LOCAL_NED, then per message its codec.direct_fields or None. The field tuples are checked before
+   anything is taken, so one that is refused leaves the configuration as it was */
 static PyObject *configure_parser(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
     if (check_nargs("configure_parser", nargs, 13) < 0) return NULL;
