@@ -43,7 +43,7 @@ from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
 from link.messages import AttitudeTarget, CommandKind, ExternalPose, MocapPose, ThrustMoment, VehicleCommand
 from link.transports import open_transport
 from link.transports.base import free_loopback_port
-from link.transports.zenoh_threads import use_background_threads
+from link.transports.zenoh_process import use_lockstep_settings
 from model.radio import load_radio_profile
 from model.vehicle import FIRMWARE_VEHICLES, GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
@@ -256,7 +256,7 @@ def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str 
     the ground station's do, so the emulator may publish a tick before the last one's ack when its
     lookahead covers a whole tick."""
     opts = {"connect": [endpoint], "listen": []}
-    use_background_threads(True)  # as a lockstep ground station's (groundstation.session)
+    use_lockstep_settings(True)  # as a lockstep ground station's (groundstation.session)
     keys = VehicleKeys(PREFIX, 1)
     vehicle = load_vehicle(vehicle_name)
     codec = Codec(GROUND_STATION_SYSTEM_ID, limits=ActuatorLimits.from_vehicle(vehicle))

@@ -50,7 +50,7 @@ from groundstation.usercode.loader import builtin_or_user_file
 from link.crtp.packet import CRTP_HOST, DEFAULT_CRTP_PORT
 from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
-from link.transports import zenoh_threads
+from link.transports import zenoh_process
 from link.transports.base import free_loopback_port
 from link.transports.table import check_radio_link, far_end
 from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
@@ -283,7 +283,7 @@ def _settings(args, clock: str) -> dict:
     if args.radio_link is not None:
         check_radio_link(args.radio_link, 1, clock)  # the ground station's address is its own vehicle's
     signing = signing_from_args(args)
-    zenoh_threads.environment_choice()
+    zenoh_process.check_environment()
     if args.link == "crtp":
         _check_crtp(args, clock, signing)
     elif args.uri is not None:

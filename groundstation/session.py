@@ -45,7 +45,7 @@ from link.keys import VehicleKeys
 from link.mavlink import frame_kernel
 from link.mavlink.codec import ActuatorLimits
 from link.transports import open_transport
-from link.transports.zenoh_threads import use_background_threads
+from link.transports.zenoh_process import use_lockstep_settings
 from model.vehicle import load_vehicle
 from model.world import World
 
@@ -101,7 +101,7 @@ def run_session(opts: SessionOptions) -> SessionResult:
     world = opts.world
     log_dir = Path(opts.log_dir) if opts.log_dir else default_log_dir()
     keys = VehicleKeys(opts.prefix, opts.vehicle_id)
-    use_background_threads(opts.clock == "lockstep")  # before the first zenoh session (link.transports.zenoh_threads)
+    use_lockstep_settings(opts.clock == "lockstep")  # before the first zenoh session (link.transports.zenoh_process)
     wall_start = time.monotonic()
     with FlightLog(log_dir) as flight_log:
         if opts.plan is not None:

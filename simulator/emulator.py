@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from link.transports.zenoh_threads import use_background_threads
+from link.transports.zenoh_process import use_lockstep_settings
 from model.errors import UserError
 from simulator.emulator_config import EmulatorConfig
 from simulator.fleet import STEP_TOTAL, VehicleNode, default_starts
@@ -54,7 +54,7 @@ class Emulator:
         self.config = config
         seeds = np.random.SeedSequence(config.seed).spawn(config.vehicles)
         starts = config.start_positions_enu_m or default_starts(config.world, config.vehicles, config.airborne)
-        use_background_threads(config.clock == "lockstep")  # before the nodes open zenoh (zenoh_threads)
+        use_lockstep_settings(config.clock == "lockstep")  # before the nodes open zenoh (zenoh_process)
         self.nodes = [VehicleNode(config, i + 1, seeds[i], starts[i]) for i in range(config.vehicles)]
         self.dt_s = 1.0 / config.physics_rate_hz
         self.steps = 0  # physics steps done (lockstep: may run ahead of the last tick, see simulator.lockstep)

@@ -10,11 +10,15 @@ settings, closed when the last user releases it (or at interpreter exit); ZenohS
 Defaults (our choice, not zenoh's): peer mode, multicast scouting OFF, so a process only talks to the
 endpoints it is given; a connect that found nobody listening is retried after 20 ms, doubling
 (CONNECT_RETRY). A config file (JSON5, zenoh's own format) is loaded first; any option given
-explicitly overrides the file's value. zenoh's own transport settings are kept: its low-latency unicast
-transport (transport/unicast/lowlatency, which needs QoS off) was measured with `cfstack link-bench` at
+explicitly overrides the file's value. A realtime process keeps zenoh's universal transport: its low-latency
+unicast transport (transport/unicast/lowlatency, which needs QoS off) was measured with `cfstack link-bench` at
 ~20-30 us lower round trips on loopback, but it sends every sample in its own write, so a burst of
 frames went ~3-5x slower (zenoh link 25-45 k vs 50-60 k frames/s), and it would drop QoS priorities.
-zenoh's own threads run as link.transports.zenoh_threads says (in the background in a lockstep process).
+A lockstep process offers it (LOW_LATENCY_CONFIG), measured faster there (link.transports.zenoh_process); a
+config file decides alone. It has no fragmentation: a sample longer than the link's batch is lost with the link (on
+loopback TCP, 48000 B arrived and 50000 B broke the link, silently: a throwaway script, zenoh 1.10.2), so a
+low-latency session's transports refuse samples over LOW_LATENCY_MAX_SAMPLE_BYTES (ours are at most 8192 B).
+zenoh's own threads run as link.transports.zenoh_process says (in the background in a lockstep process).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from pathlib import Path
 
 import zenoh
 
-from link.transports import zenoh_threads
+from link.transports import zenoh_process
 from model.errors import UserError
 
 DEFAULT_MODE = "peer"
@@ -49,6 +53,11 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 # listening 1 s later, then 2 and 4 s; `cfstack fly` starts its emulator child and its ground station at
 # once, and a user may start the ground station first, so try again after 20 ms, doubling up to zenoh's 4 s.
 CONNECT_RETRY = {"period_init_ms": 20, "period_max_ms": 4000, "period_increase_factor": 2}
+# zenoh's low-latency transport, offered where link.transports.zenoh_process says (a lockstep process)
+LOW_LATENCY_CONFIG = {"transport/unicast/lowlatency": True, "transport/unicast/qos/enabled": False}
+# The longest sample a low-latency session's transports send: below the 48000 B measured to arrive whole on
+# loopback TCP (module docstring), with room for other links' smaller batches; ours are at most 8192 B.
+LOW_LATENCY_MAX_SAMPLE_BYTES = 32768
 
 
 def check_endpoint(endpoint: str) -> str:
@@ -140,6 +149,9 @@ class ZenohSettings:
                 _insert(config, "connect/retry", CONNECT_RETRY)
         if self.listen is not None:
             _insert(config, "listen/endpoints", list(self.listen))
+        if not from_file and zenoh_process.offers_low_latency():
+            for key, value in LOW_LATENCY_CONFIG.items():
+                _insert(config, key, value)
         return config
 
     def describe(self) -> str:
@@ -180,6 +192,7 @@ def zenoh_error_text(err: Exception) -> str:
 class _SharedSession:
     session: zenoh.Session
     users: int
+    low_latency: bool  # opened offering zenoh's low-latency transport
 
 
 _SESSIONS: dict[ZenohSettings, _SharedSession] = {}
@@ -191,28 +204,38 @@ def acquire_session(settings: ZenohSettings) -> zenoh.Session:
     with _SESSIONS_LOCK:
         shared = _SESSIONS.get(settings)
         if shared is None:
+            config = settings.to_config()
             try:
-                session = _open(settings.to_config())
+                session = _open(config)
             except zenoh.ZError as err:
                 raise UserError(f"cannot open zenoh session ({settings.describe()}): "
                                 f"{zenoh_error_text(err)}") from None
-            shared = _SESSIONS[settings] = _SharedSession(session, 0)
+            low_latency = json.loads(config.get_json("transport/unicast/lowlatency")) is True
+            shared = _SESSIONS[settings] = _SharedSession(session, 0, low_latency)
         shared.users += 1
         return shared.session
 
 
+def max_sample_bytes(settings: ZenohSettings) -> int | None:
+    """The longest sample the open session for these settings sends whole: LOW_LATENCY_MAX_SAMPLE_BYTES
+    where it offers the low-latency transport, else None (zenoh fragments)."""
+    with _SESSIONS_LOCK:
+        shared = _SESSIONS.get(settings)
+        return LOW_LATENCY_MAX_SAMPLE_BYTES if shared is not None and shared.low_latency else None
+
+
 def _open(config: zenoh.Config) -> zenoh.Session:
-    """zenoh.open; where zenoh's threads go in the background (link.transports.zenoh_threads), called from a
+    """zenoh.open; where zenoh's threads go in the background (link.transports.zenoh_process), called from a
     short-lived thread of ours put there first: a thread inherits its creator's policy and niceness, zenoh
     starts its runtimes' threads at the first open, and the threads it starts later are started by those.
     (The caller's own thread could not take its niceness back after: only a privileged process may lower it.)"""
-    if not zenoh_threads.in_background():
+    if not zenoh_process.in_background():
         return zenoh.open(config)
     result: list = []
 
     def open_in_background() -> None:
         try:
-            zenoh_threads.to_background(threading.get_native_id())
+            zenoh_process.to_background(threading.get_native_id())
             result.append(zenoh.open(config))
         except BaseException as err:  # noqa: BLE001 - handed to the caller's thread, which raises it
             result.append(err)

@@ -75,6 +75,7 @@ from link.transports.zenoh_session import (
     SESSION_OPTIONS,
     ZenohSettings,
     acquire_session,
+    max_sample_bytes,
     release_session,
     zenoh_error_text,
 )
@@ -200,6 +201,7 @@ class ZenohTransport(Transport):
         self._subscriber: zenoh.Subscriber | None = None
         self._handler = None  # the subscriber's FIFO
         self._waker: _Waker | None = None
+        self._max_sample_bytes: int | None = None  # the session's limit (a low-latency one's), set at open
         self._receiving = threading.Lock()  # held by the one thread blocked in the FIFO's recv()
 
     def open(self) -> None:
@@ -208,6 +210,7 @@ class ZenohTransport(Transport):
         tx_key = _key(self.tx, "tx") if self.tx is not None else None
         rx_key = _key(self.rx, "rx") if self.rx is not None else None
         self._session = acquire_session(self.settings)
+        self._max_sample_bytes = max_sample_bytes(self.settings)
         try:
             if tx_key is not None:
                 self._publisher = self._session.declare_publisher(
@@ -243,6 +246,10 @@ class ZenohTransport(Transport):
         publisher = self._publisher  # None unless open with a tx key (close() clears it)
         if publisher is None or not self.is_open:
             return self.stats.record_send(len(frame), False)
+        limit = self._max_sample_bytes
+        if limit is not None and len(frame) > limit:  # zenoh would lose it and the link with it (zenoh_session)
+            raise UserError(f"zenoh key {self.tx}: a {len(frame)} B sample is longer than the {limit} B a "
+                            "low-latency zenoh session sends whole (CFSTACK_ZENOH_TRANSPORT=universal lifts it)")
         try:
             publisher.put(frame if type(frame) is bytes else bytes(frame))
         except zenoh.ZError:  # the session was closed under us

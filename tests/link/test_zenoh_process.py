@@ -1,8 +1,10 @@
-"""zenoh's own threads run in the background (link.transports.zenoh_threads: SCHED_BATCH, niceness 19) where a
+"""zenoh's own threads run in the background (link.transports.zenoh_process: SCHED_BATCH, niceness 19) where a
 process asks for it (lockstep) or CFSTACK_ZENOH_THREADS says so, and ours never do. Each case is a fresh process
 (zenoh starts its threads once per process): two sessions, one listening and one connecting, exchange a frame,
 so zenoh has started its link's transmit and receive threads too; then the test reads every thread's policy and
-niceness off /proc (_threads_of). Then which way `cfstack fly` goes, in each clock, read the same way."""
+niceness off /proc (_threads_of). Then which way `cfstack fly` goes, in each clock, read the same way.
+The same choice makes a lockstep process's sessions offer zenoh's low-latency transport: frames cross between
+processes whichever end offers it, and a sample longer than it sends whole is refused in one line."""
 
 from __future__ import annotations
 
@@ -16,8 +18,10 @@ from pathlib import Path
 
 import pytest
 
-from link.transports.zenoh_threads import BACKGROUND_NICE, to_background
-from link.transports.zenoh_threads import ENV as ZENOH_THREADS_ENV
+from link.transports import zenoh_process
+from link.transports.zenoh_process import BACKGROUND_NICE, THREADS_ENV, TRANSPORT_ENV, to_background
+from link.transports.zenoh_session import LOW_LATENCY_MAX_SAMPLE_BYTES, ZenohSettings
+from model.errors import UserError
 
 REPO = Path(__file__).resolve().parents[2]
 ZENOH_RUNTIMES = ("app", "net", "acc", "tx", "rx")  # zenoh's runtimes name their threads NAME-N
@@ -28,10 +32,10 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_BATCH") or not Path("/pro
 PROBE = r"""
 import json, sys, time
 from link.transports import open_transport
-from link.transports.zenoh_threads import use_background_threads
+from link.transports.zenoh_process import use_lockstep_settings
 port = int(sys.argv[1])
 if sys.argv[2] != "default":
-    use_background_threads(sys.argv[2] == "background")
+    use_lockstep_settings(sys.argv[2] == "background")
 listener = open_transport("zenoh", rx="test/threads", listen=[f"tcp/127.0.0.1:{port}"])
 talker = open_transport("zenoh", tx="test/threads", connect=[f"tcp/127.0.0.1:{port}"])
 talker.wait_for_subscribers(10.0)
@@ -47,12 +51,12 @@ sys.stdin.read()  # the test reads our threads meanwhile; it closes our stdin wh
 
 def run_probe(free_tcp_port, asked: str = "background", env_value: str | None = None,
               prefix: tuple[str, ...] = ()) -> list[dict]:
-    """The probe's threads once its link is up. asked: what the process asks for (use_background_threads), or
-    "default" (it does not ask)."""
+    """The probe's threads once its link is up. asked: what the process asks for (use_lockstep_settings:
+    "background" for lockstep, "normal" for realtime), or "default" (it does not ask)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    env.pop(ZENOH_THREADS_ENV, None)
+    env.pop(THREADS_ENV, None)
     if env_value is not None:
-        env[ZENOH_THREADS_ENV] = env_value
+        env[THREADS_ENV] = env_value
     probe = subprocess.Popen([*prefix, sys.executable, "-c", PROBE, str(free_tcp_port()), asked],
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
@@ -103,12 +107,12 @@ def test_a_niced_process_keeps_its_niceness_and_zenoh_still_goes_below_it(free_t
 
 
 def test_an_unknown_setting_is_one_line_naming_the_variable(tmp_path):
-    env = dict(os.environ, **{ZENOH_THREADS_ENV: "fast"})
+    env = dict(os.environ, **{THREADS_ENV: "fast"})
     done = subprocess.run([sys.executable, "-m", "cfstack", "fly", "--trajectory", "hover", "--log", str(tmp_path)],
                           capture_output=True, text=True, env=env, timeout=60)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
-    assert lines == [f"cfstack fly: {ZENOH_THREADS_ENV}='fast': must be one of background, normal"], done.stderr
+    assert lines == [f"cfstack fly: {THREADS_ENV}='fast': must be one of background, normal"], done.stderr
 
 
 def test_a_refused_policy_is_one_warning_and_the_thread_stays_as_it_was(monkeypatch, caplog):
@@ -123,7 +127,7 @@ def test_a_refused_policy_is_one_warning_and_the_thread_stays_as_it_was(monkeypa
     assert (os.sched_getscheduler(tid), os.getpriority(os.PRIO_PROCESS, tid)) == before
     assert [r.getMessage() for r in caplog.records] == [
         "could not put zenoh's threads in the background (Operation not permitted): they run as the process does; "
-        f"{ZENOH_THREADS_ENV}=normal skips the attempt"]
+        f"{THREADS_ENV}=normal skips the attempt"]
 
 
 def _threads_of(pid: int) -> list[dict]:
@@ -153,7 +157,7 @@ def _linked_threads(pid: int, timeout_s: float = 60.0) -> list[dict]:
 @pytest.mark.parametrize(("clock", "expected"), [("lockstep", True), ("realtime", False)])
 def test_fly_puts_zenohs_threads_in_the_background_in_lockstep_only(tmp_path, clock, expected):
     env = dict(os.environ)
-    env.pop(ZENOH_THREADS_ENV, None)
+    env.pop(THREADS_ENV, None)
     fly = subprocess.Popen([sys.executable, "-m", "cfstack", "fly", "--trajectory", "hover", "--clock", clock,
                             "--log", str(tmp_path)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     try:
@@ -168,3 +172,106 @@ def test_fly_puts_zenohs_threads_in_the_background_in_lockstep_only(tmp_path, cl
         zenoh = zenoh_threads(threads)
         assert [background(t) for t in zenoh] == [expected] * len(zenoh)
         assert not any(background(t) for t in threads if t["python"])
+
+
+# --- the transport a session offers ---------------------------------------------------------------------
+
+
+def _offered(monkeypatch, lockstep: bool, env_value: str | None = None, **settings) -> tuple[str, str]:
+    """(transport/unicast/lowlatency, transport/unicast/qos/enabled) of the config a session would open with."""
+    monkeypatch.setattr(zenoh_process, "_lockstep", lockstep)
+    if env_value is None:
+        monkeypatch.delenv(TRANSPORT_ENV, raising=False)
+    else:
+        monkeypatch.setenv(TRANSPORT_ENV, env_value)
+    config = ZenohSettings(**settings).to_config()
+    return config.get_json("transport/unicast/lowlatency"), config.get_json("transport/unicast/qos/enabled")
+
+
+@pytest.mark.parametrize(("lockstep", "env_value", "offered"), [
+    (True, None, ("true", "false")),  # lockstep: low latency, QoS off as zenoh requires for it
+    (False, None, ("false", "true")),  # realtime: zenoh's defaults
+    (True, "universal", ("false", "true")),  # the environment overrides the process
+    (False, "lowlatency", ("true", "false")),
+])
+def test_a_lockstep_process_offers_the_low_latency_transport(monkeypatch, lockstep, env_value, offered):
+    assert _offered(monkeypatch, lockstep, env_value) == offered
+
+
+def test_a_config_file_decides_the_transport_alone(monkeypatch, tmp_path):
+    config_file = tmp_path / "zenoh.json5"
+    config_file.write_text("{ mode: 'peer' }")
+    assert _offered(monkeypatch, True, config_file=str(config_file)) == ("false", "true")
+
+
+def test_an_unknown_transport_setting_is_one_line_naming_the_variable(tmp_path):
+    env = dict(os.environ, **{TRANSPORT_ENV: "fast"})
+    done = subprocess.run([sys.executable, "-m", "cfstack", "fly", "--trajectory", "hover", "--log", str(tmp_path)],
+                          capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"cfstack fly: {TRANSPORT_ENV}='fast': must be one of lowlatency, universal"], done.stderr
+
+
+ECHO = r"""
+import sys
+from link.transports import open_transport
+from link.transports.zenoh_process import use_lockstep_settings
+port, lockstep = int(sys.argv[1]), sys.argv[2] == "lockstep"
+use_lockstep_settings(lockstep)
+echo = open_transport("zenoh", tx="test/back", rx="test/out", listen=[f"tcp/127.0.0.1:{port}"])
+print("ready", flush=True)
+while True:
+    for frame in echo.receive(1.0):
+        if frame == b"stop":
+            sys.exit(0)
+        echo.send(frame)
+"""
+
+
+def _echo_sizes(free_tcp_port, echo_lockstep: bool, caller_lockstep: bool, sizes: list[int]) -> list[int]:
+    """Frames of these sizes sent to an echo in another process and back; the sizes that came back whole."""
+    port = free_tcp_port()
+    echo = subprocess.Popen([sys.executable, "-c", ECHO, str(port), "lockstep" if echo_lockstep else "realtime"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(REPO)))
+    script = (f"import sys, json\nfrom link.transports import open_transport\n"
+              f"from link.transports.zenoh_process import use_lockstep_settings\n"
+              f"use_lockstep_settings({caller_lockstep})\n"
+              f"t = open_transport('zenoh', tx='test/out', rx='test/back', connect=['tcp/127.0.0.1:{port}'])\n"
+              f"t.wait_for_subscribers(20.0)\nback = []\n"
+              f"for size in {sizes!r}:\n"
+              f"    t.send(bytes([size % 251]) * size)\n"
+              f"    frames = t.receive(10.0)\n"
+              f"    back += [len(f) for f in frames if f == bytes([size % 251]) * size]\n"
+              f"t.send(b'stop')\nprint(json.dumps(back))\n")
+    try:
+        assert echo.stdout.readline().strip() == "ready"
+        caller = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                                env=dict(os.environ, PYTHONPATH=str(REPO)))
+        assert caller.returncode == 0, caller.stderr
+        return json.loads(caller.stdout.strip().splitlines()[-1])
+    finally:
+        echo.kill()
+        echo.wait(timeout=30)
+
+
+@pytest.mark.parametrize(("echo_lockstep", "caller_lockstep"), [(True, True), (True, False), (False, True)])
+def test_frames_cross_between_processes_whichever_end_offers_low_latency(free_tcp_port, echo_lockstep,
+                                                                        caller_lockstep):
+    sizes = [60, 8192, LOW_LATENCY_MAX_SAMPLE_BYTES]  # a command, a packed tick, the longest sample allowed
+    assert _echo_sizes(free_tcp_port, echo_lockstep, caller_lockstep, sizes) == sizes
+
+
+def test_a_low_latency_session_refuses_a_sample_it_would_lose_in_one_line(monkeypatch, free_tcp_port):
+    from link.transports import open_transport
+
+    monkeypatch.setattr(zenoh_process, "_lockstep", True)
+    monkeypatch.delenv(TRANSPORT_ENV, raising=False)
+    port = free_tcp_port()
+    with open_transport("zenoh", tx="test/long", listen=[f"tcp/127.0.0.1:{port}"]) as transport:
+        with pytest.raises(UserError) as refused:
+            transport.send(b"x" * (LOW_LATENCY_MAX_SAMPLE_BYTES + 1))
+    assert str(refused.value) == (f"zenoh key test/long: a {LOW_LATENCY_MAX_SAMPLE_BYTES + 1} B sample is longer "
+                                  f"than the {LOW_LATENCY_MAX_SAMPLE_BYTES} B a low-latency zenoh session sends "
+                                  "whole (CFSTACK_ZENOH_TRANSPORT=universal lifts it)")
