@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from link.transports import zenoh_process
+from link.transports import open_transport, zenoh_process
 from link.transports.zenoh_process import BACKGROUND_NICE, THREADS_ENV, TRANSPORT_ENV, to_background
 from link.transports.zenoh_session import LOW_LATENCY_MAX_SAMPLE_BYTES, ZenohSettings
 from model.errors import UserError
@@ -229,26 +229,34 @@ while True:
 """
 
 
+CALLER = r"""
+import json, sys
+from link.transports import open_transport
+from link.transports.zenoh_process import use_lockstep_settings
+port, lockstep, sizes = int(sys.argv[1]), sys.argv[2] == "lockstep", json.loads(sys.argv[3])
+use_lockstep_settings(lockstep)
+caller = open_transport("zenoh", tx="test/out", rx="test/back", connect=[f"tcp/127.0.0.1:{port}"])
+caller.wait_for_subscribers(20.0)
+back = []
+for size in sizes:
+    frame = bytes([size % 251]) * size
+    caller.send(frame)
+    back += [len(f) for f in caller.receive(10.0) if f == frame]
+caller.send(b"stop")
+print(json.dumps(back))
+"""
+
+
 def _echo_sizes(free_tcp_port, echo_lockstep: bool, caller_lockstep: bool, sizes: list[int]) -> list[int]:
     """Frames of these sizes sent to an echo in another process and back; the sizes that came back whole."""
-    port = free_tcp_port()
-    echo = subprocess.Popen([sys.executable, "-c", ECHO, str(port), "lockstep" if echo_lockstep else "realtime"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ, PYTHONPATH=str(REPO)))
-    script = (f"import sys, json\nfrom link.transports import open_transport\n"
-              f"from link.transports.zenoh_process import use_lockstep_settings\n"
-              f"use_lockstep_settings({caller_lockstep})\n"
-              f"t = open_transport('zenoh', tx='test/out', rx='test/back', connect=['tcp/127.0.0.1:{port}'])\n"
-              f"t.wait_for_subscribers(20.0)\nback = []\n"
-              f"for size in {sizes!r}:\n"
-              f"    t.send(bytes([size % 251]) * size)\n"
-              f"    frames = t.receive(10.0)\n"
-              f"    back += [len(f) for f in frames if f == bytes([size % 251]) * size]\n"
-              f"t.send(b'stop')\nprint(json.dumps(back))\n")
+    port, env = str(free_tcp_port()), dict(os.environ, PYTHONPATH=str(REPO))
+    clock = {True: "lockstep", False: "realtime"}
+    echo = subprocess.Popen([sys.executable, "-c", ECHO, port, clock[echo_lockstep]],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         assert echo.stdout.readline().strip() == "ready"
-        caller = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
-                                env=dict(os.environ, PYTHONPATH=str(REPO)))
+        caller = subprocess.run([sys.executable, "-c", CALLER, port, clock[caller_lockstep], json.dumps(sizes)],
+                                capture_output=True, text=True, timeout=120, env=env)
         assert caller.returncode == 0, caller.stderr
         return json.loads(caller.stdout.strip().splitlines()[-1])
     finally:
@@ -264,8 +272,6 @@ def test_frames_cross_between_processes_whichever_end_offers_low_latency(free_tc
 
 
 def test_a_low_latency_session_refuses_a_sample_it_would_lose_in_one_line(monkeypatch, free_tcp_port):
-    from link.transports import open_transport
-
     monkeypatch.setattr(zenoh_process, "_lockstep", True)
     monkeypatch.delenv(TRANSPORT_ENV, raising=False)
     port = free_tcp_port()
