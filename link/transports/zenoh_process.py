@@ -19,8 +19,9 @@ speed"). It is never starved: four flights at once on two cores finished sooner,
 
 Transport. zenoh's low-latency unicast transport (transport/unicast/lowlatency, with QoS off as it requires)
 writes each sample from the caller's thread, where the universal one hands it to zenoh's sending thread and
-batches. A burst of many small samples is slower on it (`cfstack link-bench`: 25-45 k against 50-60 k frames/s),
-which is why a realtime process keeps zenoh's universal transport; in lockstep a tick's frames go out packed into
+batches. `cfstack link-bench` measured it at ~20-30 us lower round trips on loopback, but a burst of many small
+samples slower (25-45 k against 50-60 k frames/s), and it drops QoS priorities: which is why a realtime process
+keeps zenoh's universal transport; in lockstep a tick's frames go out packed into
 a few samples (simulator.publishing) and every tick waits on a round trip. Measured on this project's 2-core
 machines (2026-11-27, throwaway scripts): a 60 B ping-pong between two processes, p50 137-174 us against 183-201;
 `cfstack fly --trajectory circle` interleaved, 6 pairs per mode, moments 1.185x the real-time factor (6 of 6

@@ -10,12 +10,10 @@ settings, closed when the last user releases it (or at interpreter exit); ZenohS
 Defaults (our choice, not zenoh's): peer mode, multicast scouting OFF, so a process only talks to the
 endpoints it is given; a connect that found nobody listening is retried after 20 ms, doubling
 (CONNECT_RETRY). A config file (JSON5, zenoh's own format) is loaded first; any option given
-explicitly overrides the file's value. A realtime process keeps zenoh's universal transport: its low-latency
-unicast transport (transport/unicast/lowlatency, which needs QoS off) was measured with `cfstack link-bench` at
-~20-30 us lower round trips on loopback, but it sends every sample in its own write, so a burst of
-frames went ~3-5x slower (zenoh link 25-45 k vs 50-60 k frames/s), and it would drop QoS priorities.
-A lockstep process offers it (LOW_LATENCY_CONFIG), measured faster there (link.transports.zenoh_process); a
-config file decides alone. It has no fragmentation: a sample longer than the link's batch is lost with the link (on
+explicitly overrides the file's value. The unicast transport offered, zenoh's universal one or its
+low-latency one (LOW_LATENCY_CONFIG), is link.transports.zenoh_process's choice (the low-latency one in a
+lockstep process; why, with the measurements, there); a config file decides it alone. The low-latency transport
+has no fragmentation: a sample longer than the link's batch is lost with the link (on
 loopback TCP, 48000 B arrived and 50000 B broke the link, silently: a throwaway script, zenoh 1.10.2), so a
 low-latency session's transports refuse samples over LOW_LATENCY_MAX_SAMPLE_BYTES (ours are at most 8192 B).
 zenoh's own threads run as link.transports.zenoh_process says (in the background in a lockstep process).
