@@ -13,6 +13,8 @@ import os
 from datetime import datetime
 from pathlib import Path
 
+from groundstation.flightlog_kernel import format_row
+
 COLUMNS = (
     "t_s,phase,"
     "truth_x_m,truth_y_m,truth_z_m,truth_vx_mps,truth_vy_mps,truth_vz_mps,truth_qw,truth_qx,truth_qy,truth_qz,"
@@ -39,7 +41,8 @@ def default_log_dir(root: str | Path = "flights") -> Path:
 
 
 # Numbers are written with 12 significant digits (a picometre at metres, well below any sensor's
-# resolution): one %-format per block costs a quarter of repr() per float, which matters at 500 rows/s.
+# resolution): one %-format per block costs a quarter of repr() per float, which matters at 500 rows/s; the
+# row's text is compiled (flightlog_kernel), with _row_line as its twin.
 NUMBER = "%.12g"
 _FORMAT = {count: ",".join([NUMBER] * count) for count in _BLOCKS.values()}
 _BLANK = {count: "," * (count - 1) for count in _BLOCKS.values()}
@@ -57,6 +60,19 @@ def _cells(values, count: int) -> str:
 
 def _cell(value) -> str:
     return "" if value is None else NUMBER % value
+
+
+def _row_line(t_s, phase, truth, estimate, sigma, reference, moment_cmd, attitude_cmd, saturated, mocap_age_s,
+              healthy, uplink_sent, downlink_received, downlink_lost, rtt_ms, tick_time_ms, est_time_s, truth_time_s,
+              battery_v) -> str:
+    """FlightLog.row's line (newline included): the Python twin of flightlog_kernel.format_row."""
+    cells = (NUMBER % t_s, phase, _cells(truth, 10), _cells(estimate, 10), _cells(sigma, 9),
+             _cells(reference, 6), _cells(moment_cmd, 4), _cells(attitude_cmd, 4),
+             "" if saturated is None else str(int(saturated)), _cell(mocap_age_s),
+             "" if healthy is None else str(int(healthy)), str(uplink_sent), str(downlink_received),
+             str(downlink_lost), _cell(rtt_ms), _cell(tick_time_ms), _cell(est_time_s), _cell(truth_time_s),
+             _cell(battery_v))
+    return ",".join(cells) + "\n"
 
 
 class FlightLog:
@@ -88,13 +104,14 @@ class FlightLog:
         the command was computed from - what end-to-end latency is measured from; truth_time_s: the sample
         time of the truth in the row (so the estimate is graded against the truth at its own time);
         battery_v: the newest battery voltage the vehicle reported (SYS_STATUS), None before the first."""
-        cells = (NUMBER % t_s, phase, _cells(truth, 10), _cells(estimate, 10), _cells(sigma, 9),
-                 _cells(reference, 6), _cells(moment_cmd, 4), _cells(attitude_cmd, 4),
-                 "" if saturated is None else str(int(saturated)), _cell(mocap_age_s),
-                 "" if healthy is None else str(int(healthy)), str(uplink_sent), str(downlink_received),
-                 str(downlink_lost), _cell(rtt_ms), _cell(tick_time_ms), _cell(est_time_s), _cell(truth_time_s),
-                 _cell(battery_v))
-        self._states.write(",".join(cells) + "\n")
+        line = None if format_row is None else format_row(
+            t_s, phase, truth, estimate, sigma, reference, moment_cmd, attitude_cmd, saturated, mocap_age_s, healthy,
+            uplink_sent, downlink_received, downlink_lost, rtt_ms, tick_time_ms, est_time_s, truth_time_s, battery_v)
+        if line is None:  # not built, or a row the kernel leaves to the Python
+            line = _row_line(t_s, phase, truth, estimate, sigma, reference, moment_cmd, attitude_cmd, saturated,
+                             mocap_age_s, healthy, uplink_sent, downlink_received, downlink_lost, rtt_ms,
+                             tick_time_ms, est_time_s, truth_time_s, battery_v)
+        self._states.write(line)
 
     def motors(self, t_s: float, vehicle_time_s: float, duty) -> None:
         """One motor report (MotorOutputs) as it arrives at tick t_s: motors.csv, line-buffered like states.csv."""
