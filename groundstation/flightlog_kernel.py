@@ -8,8 +8,8 @@ flightlog._row_line (any value not of the types FlightLog.row documents, a block
 
 Same text as the Python (tests/groundstation/test_flightlog_kernel.py). Why compiled: the row is written every
 tick, after the ack but on the flight loop's thread, whose CPU time per tick bounds a lockstep flight's speed (a
-flight whose row was a constant line flew 1.18x faster, 8 pairs); Python's "%.12g" of its 52 numbers, the cells'
-strings and their join took 27 us of CPU per row in a moments circle (13 us in a warm replay of its rows).
+flight whose row was a constant line flew 1.18x faster, 8 pairs); Python's "%.12g" of its numbers (up to 50), the
+cells' strings and their join took 27 us of CPU per row in a moments circle (13 us in a warm replay of its rows).
 """
 
 from __future__ import annotations
