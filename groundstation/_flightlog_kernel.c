@@ -284,8 +284,4 @@ static struct PyModuleDef module = {
     "Compiled twin of states.csv's row formatting (groundstation.flightlog_kernel).", -1, methods,
 };
 
-PyMODINIT_FUNC PyInit__flightlog_kernel(void) {
-    PyObject *m = PyModule_Create(&module);
-    if (m != NULL && PyModule_AddIntConstant(m, "FAST_PATH", FAST_PATH) < 0) Py_CLEAR(m);
-    return m;
-}
+PyMODINIT_FUNC PyInit__flightlog_kernel(void) { return PyModule_Create(&module); }

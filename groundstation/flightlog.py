@@ -104,14 +104,11 @@ class FlightLog:
         the command was computed from - what end-to-end latency is measured from; truth_time_s: the sample
         time of the truth in the row (so the estimate is graded against the truth at its own time);
         battery_v: the newest battery voltage the vehicle reported (SYS_STATUS), None before the first."""
-        line = None if format_row is None else format_row(
-            t_s, phase, truth, estimate, sigma, reference, moment_cmd, attitude_cmd, saturated, mocap_age_s, healthy,
-            uplink_sent, downlink_received, downlink_lost, rtt_ms, tick_time_ms, est_time_s, truth_time_s, battery_v)
-        if line is None:  # not built, or a row the kernel leaves to the Python
-            line = _row_line(t_s, phase, truth, estimate, sigma, reference, moment_cmd, attitude_cmd, saturated,
-                             mocap_age_s, healthy, uplink_sent, downlink_received, downlink_lost, rtt_ms,
-                             tick_time_ms, est_time_s, truth_time_s, battery_v)
-        self._states.write(line)
+        values = (t_s, phase, truth, estimate, sigma, reference, moment_cmd, attitude_cmd, saturated, mocap_age_s,
+                  healthy, uplink_sent, downlink_received, downlink_lost, rtt_ms, tick_time_ms, est_time_s,
+                  truth_time_s, battery_v)
+        line = None if format_row is None else format_row(*values)
+        self._states.write(_row_line(*values) if line is None else line)  # None: not built, or left to the Python
 
     def motors(self, t_s: float, vehicle_time_s: float, duty) -> None:
         """One motor report (MotorOutputs) as it arrives at tick t_s: motors.csv, line-buffered like states.csv."""

@@ -15,9 +15,8 @@ cells' strings and their join took 27 us of CPU per row in a moments circle (13 
 from __future__ import annotations
 
 try:
-    from groundstation._flightlog_kernel import FAST_PATH, format_number, format_row
+    from groundstation._flightlog_kernel import format_number, format_row
 except ImportError:  # not built (no C compiler at install): the log runs its Python, same text, slower
     format_row = format_number = None
-    FAST_PATH = 0
 
 COMPILED = format_row is not None
