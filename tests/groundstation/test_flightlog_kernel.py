@@ -20,7 +20,7 @@ needs_compiled = pytest.mark.skipif(
     not flightlog_kernel.COMPILED,
     reason="groundstation/_flightlog_kernel.c was not built (no C compiler at pip install): the log runs its Python")
 
-BLOCKS = (10, 10, 9, 6, 4, 4)  # truth, estimate, sigma, reference, moment_cmd, attitude_cmd
+BLOCKS = tuple(flightlog._BLOCKS.values())  # cells of truth, estimate, sigma, reference, moment_cmd, attitude_cmd
 
 
 def _python(x: float) -> str:
@@ -28,8 +28,8 @@ def _python(x: float) -> str:
 
 
 def _mismatches(values) -> list[tuple[float, str, str]]:
-    return [(x, flightlog_kernel.format_number(x), _python(x)) for x in values
-            if flightlog_kernel.format_number(x) != _python(x)]
+    texts = ((x, flightlog_kernel.format_number(x), _python(x)) for x in values)
+    return [(x, kernel, python) for x, kernel, python in texts if kernel != python]
 
 
 @needs_compiled
