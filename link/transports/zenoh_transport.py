@@ -70,6 +70,7 @@ import weakref
 
 import zenoh
 
+from link.transports import zenoh_process
 from link.transports.base import Transport
 from link.transports.zenoh_session import (
     SESSION_OPTIONS,
@@ -202,6 +203,7 @@ class ZenohTransport(Transport):
         self._handler = None  # the subscriber's FIFO
         self._waker: _Waker | None = None
         self._max_sample_bytes: int | None = None  # the session's limit (a low-latency one's), set at open
+        self._limit_remedy = ""  # what lifts that limit, for the refusal's one line (set at open)
         self._receiving = threading.Lock()  # held by the one thread blocked in the FIFO's recv()
 
     def open(self) -> None:
@@ -211,6 +213,7 @@ class ZenohTransport(Transport):
         rx_key = _key(self.rx, "rx") if self.rx is not None else None
         self._session = acquire_session(self.settings)
         self._max_sample_bytes = max_sample_bytes(self.settings)
+        self._limit_remedy = _limit_remedy(self.settings)
         try:
             if tx_key is not None:
                 self._publisher = self._session.declare_publisher(
@@ -249,7 +252,7 @@ class ZenohTransport(Transport):
         limit = self._max_sample_bytes
         if limit is not None and len(frame) > limit:  # zenoh would lose it and the link with it (zenoh_session)
             raise UserError(f"zenoh key {self.tx}: a {len(frame)} B sample is longer than the {limit} B a "
-                            "low-latency zenoh session sends whole (CFSTACK_ZENOH_TRANSPORT=universal lifts it)")
+                            f"low-latency zenoh session sends whole ({self._limit_remedy})")
         try:
             publisher.put(frame if type(frame) is bytes else bytes(frame))
         except zenoh.ZError:  # the session was closed under us
@@ -367,6 +370,14 @@ class ZenohTransport(Transport):
         self._subscriber = None
         self._publisher = None
         self._handler = None
+
+
+def _limit_remedy(settings: ZenohSettings) -> str:
+    """What lifts a low-latency session's sample limit: its config file where one decides the transport
+    (the environment variable does not apply then: zenoh_process), else the environment variable."""
+    if settings.config_file is not None:
+        return f"{settings.config_file} turns on transport/unicast/lowlatency; false there lifts it"
+    return f"{zenoh_process.TRANSPORT_ENV}=universal lifts it"
 
 
 def _key(key: str, role: str) -> zenoh.KeyExpr:

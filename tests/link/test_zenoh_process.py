@@ -281,3 +281,20 @@ def test_a_low_latency_session_refuses_a_sample_it_would_lose_in_one_line(monkey
     assert str(refused.value) == (f"zenoh key test/long: a {LOW_LATENCY_MAX_SAMPLE_BYTES + 1} B sample is longer "
                                   f"than the {LOW_LATENCY_MAX_SAMPLE_BYTES} B a low-latency zenoh session sends "
                                   "whole (CFSTACK_ZENOH_TRANSPORT=universal lifts it)")
+
+
+def test_the_refusal_names_the_config_file_that_chose_low_latency(monkeypatch, free_tcp_port, tmp_path):
+    """A --config file decides the transport alone, so the environment variable would not lift the limit."""
+    monkeypatch.setattr(zenoh_process, "_lockstep", True)
+    monkeypatch.setenv(TRANSPORT_ENV, "universal")  # ignored: the file decides
+    config_file = tmp_path / "zenoh.json5"
+    config_file.write_text("{ transport: { unicast: { lowlatency: true, qos: { enabled: false } } } }")
+    port = free_tcp_port()
+    with open_transport("zenoh", tx="test/long", listen=[f"tcp/127.0.0.1:{port}"],
+                        config_file=str(config_file)) as transport:
+        transport.send(b"x" * LOW_LATENCY_MAX_SAMPLE_BYTES)  # the longest it sends whole
+        with pytest.raises(UserError) as refused:
+            transport.send(b"x" * (LOW_LATENCY_MAX_SAMPLE_BYTES + 1))
+    assert str(refused.value) == (f"zenoh key test/long: a {LOW_LATENCY_MAX_SAMPLE_BYTES + 1} B sample is longer "
+                                  f"than the {LOW_LATENCY_MAX_SAMPLE_BYTES} B a low-latency zenoh session sends "
+                                  f"whole ({config_file} turns on transport/unicast/lowlatency; false there lifts it)")
