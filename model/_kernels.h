@@ -2,8 +2,8 @@
    simulator/crazyflie/_drive_kernel.c, groundstation/_compensation_kernel.c, groundstation/_controller_kernel.c,
    groundstation/_flightlog_kernel.c, link/mavlink/_frame_kernel.c, link/_deliver_kernel.c) share: reading Python
    numbers into C doubles, building tuples and lists of floats, checking a call's argument count, interning
-   attribute names, adding to an int attribute, and model.frames' quat_to_rows and quat_normalize_positive_w. Included by each; setup.py lists it in
-   every extension's depends. */
+   attribute names, adding to an int attribute, and model.frames' quat_to_rows and quat_normalize_positive_w.
+   Included by each; setup.py lists it in every extension's depends. */
 
 #ifndef CFSTACK_KERNELS_H
 #define CFSTACK_KERNELS_H

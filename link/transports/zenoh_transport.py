@@ -203,7 +203,6 @@ class ZenohTransport(Transport):
         self._handler = None  # the subscriber's FIFO
         self._waker: _Waker | None = None
         self._max_sample_bytes: int | None = None  # the session's limit (a low-latency one's), set at open
-        self._limit_remedy = ""  # what lifts that limit, for the refusal's one line (set at open)
         self._receiving = threading.Lock()  # held by the one thread blocked in the FIFO's recv()
 
     def open(self) -> None:
@@ -213,7 +212,6 @@ class ZenohTransport(Transport):
         rx_key = _key(self.rx, "rx") if self.rx is not None else None
         self._session = acquire_session(self.settings)
         self._max_sample_bytes = max_sample_bytes(self.settings)
-        self._limit_remedy = _limit_remedy(self.settings)
         try:
             if tx_key is not None:
                 self._publisher = self._session.declare_publisher(
@@ -252,7 +250,7 @@ class ZenohTransport(Transport):
         limit = self._max_sample_bytes
         if limit is not None and len(frame) > limit:  # zenoh would lose it and the link with it (zenoh_session)
             raise UserError(f"zenoh key {self.tx}: a {len(frame)} B sample is longer than the {limit} B a "
-                            f"low-latency zenoh session sends whole ({self._limit_remedy})")
+                            f"low-latency zenoh session sends whole ({_limit_remedy(self.settings)})")
         try:
             publisher.put(frame if type(frame) is bytes else bytes(frame))
         except zenoh.ZError:  # the session was closed under us

@@ -142,7 +142,6 @@ def test_bad_world_is_one_line_and_exit_code_2(tmp_path, content, problem):
     assert len(lines) == 1 and str(world) in lines[0] and problem in lines[0]
 
 
-
 GC_PROBE = """
 import gc, json, sys
 import groundstation.flight as flight
