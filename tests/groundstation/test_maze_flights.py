@@ -3,18 +3,16 @@
 Lockstep, esb-duplex radio profile (MAVLink's default: its traffic does not fit one Crazyradio), seeded.
 Targets: reach the goal without collision; ground-truth
 clearance >= 0.25 m on the course maps (the course's robot radius) and >= 0.1 m on the lab mazes.
-The flights run concurrently (each is two processes waiting on each other most of the time).
+The flights run concurrently (each is two processes waiting on each other most of the time), in long-lived
+workers that import the ground station once (tests/flight_batch.py).
 """
 
 import csv
-import json
-import subprocess
-import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pytest
+from flight_batch import fly_batch
 from testsupport import SHARED_WORLDS, shared_world_params, shared_worlds_present
 
 from model.world import load_world
@@ -30,7 +28,7 @@ LAB_CLEARANCE_M = 0.10
 # with --firmware ideal, as the course's ideal simulator does.
 COURSE_ARGS = ("--margin", "0.32")
 LAB_ARGS = ()  # the defaults: minimum snap at the report's 1 m/s, margin 0.2 m
-CONCURRENT_FLIGHTS = 3
+CONCURRENT_FLIGHTS = 2
 
 
 def tracked_truth(states_csv: Path) -> np.ndarray:
@@ -46,22 +44,18 @@ def tracked_clearance_bound(world: str, tracked: np.ndarray) -> float:
     return float(load_world(SHARED_WORLDS / f"{world}.json").obstacle_clearance(tracked)[0].min())
 
 
-def fly(world: str, mode: str, log: Path) -> tuple[int, dict | None, str]:
+def fly_words(world: str, mode: str, log: Path) -> list[str]:
+    """The `cfstack fly` command line of one cell (the words after `cfstack fly`)."""
     args = COURSE_ARGS if world in COURSE_MAPS else LAB_ARGS
-    run = subprocess.run([sys.executable, "-m", "cfstack", "fly", str(SHARED_WORLDS / f"{world}.json"), "--mode", mode,
-                          "--radio", "esb-duplex", "--clock", "lockstep", "--seed", "7", "--json", "--log", str(log),
-                          *args], capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
-    summary = json.loads(run.stdout) if run.stdout.strip() else None
-    return run.returncode, summary, run.stderr[-2000:]
+    return [str(SHARED_WORLDS / f"{world}.json"), "--mode", mode, "--radio", "esb-duplex", "--clock", "lockstep",
+            "--seed", "7", "--json", "--log", str(log), *args]
 
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
     cells = [(w, m) for w in (WORLD_CASES if shared_worlds_present() else []) for m in MODES]
     root = tmp_path_factory.mktemp("maze_flights")
-    with ThreadPoolExecutor(CONCURRENT_FLIGHTS) as pool:
-        futures = {cell: pool.submit(fly, cell[0], cell[1], root / f"{cell[0]}_{cell[1]}") for cell in cells}
-        return {cell: f.result() for cell, f in futures.items()}
+    return fly_batch({cell: fly_words(*cell, root / f"{cell[0]}_{cell[1]}") for cell in cells}, CONCURRENT_FLIGHTS)
 
 
 @pytest.mark.parametrize("mode", MODES)
