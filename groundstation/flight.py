@@ -52,6 +52,9 @@ COMPENSATION_RTT_SAMPLES = 5  # median over the last few TIMESYNC round trips (2
 # Compensate only while flying a reference: on the ground and while arming the model has no floor contact.
 COMPENSATED_PHASES = (Phase.TAKEOFF, Phase.SETTLE, Phase.TRACK, Phase.HOVER, Phase.LAND, Phase.FAILSAFE_HOLD)
 TRUTH_HISTORY = 512  # truth samples kept to grade the estimate at its own time (~1 s at 500 Hz)
+# The oldest generation's threshold while the loop runs (FlightLoop.run says why): gc's thresholds are C ints,
+# and this, the largest, is never reached, so CPython starts no full collection by itself.
+NO_AUTOMATIC_FULL_COLLECTION = 2**31 - 1
 
 
 @dataclass
@@ -275,18 +278,23 @@ class FlightLoop:
     def run(self) -> None:
         previous = signal.getsignal(signal.SIGINT)
         signal.signal(signal.SIGINT, self._interrupt)
-        # One full collection before the first tick, not during the loop: the start-up heap (modules, world, plan,
-        # zenoh) is large, and a full collection inside a 500 Hz realtime flight took 44 ms (22 ticks skipped
-        # at once). After it, none ran inside the loop of a lockstep moments circle or test_lab_1 maze (CPython
-        # starts one when the long-lived heap has grown by a quarter). gc.freeze() would also spare the walk, but
-        # with it every young collection took 5.8 ms instead of 0.13 (141 of them in a moments circle).
+        # No full garbage collection inside the loop: a full collection walks the whole heap, and one inside a 500 Hz
+        # realtime flight took 44 ms (22 ticks skipped at once). So one before the first tick, and none during
+        # it: CPython starts one when the objects promoted to its oldest generation since the last one reach a
+        # quarter of it, and the loop's ring buffers (sent commands, truth, time-sync samples, ~1 s each) promote
+        # a few per tick, so a lockstep moments circle still ran one (29 ms, at tick 10727) once the start-up
+        # heap was smaller. Young collections still run; they find the loop's cycles while they are young.
+        # gc.freeze() would also spare the walk, but with it every young collection took 5.8 ms instead of 0.13.
         gc.collect()
+        thresholds = gc.get_threshold()
+        gc.set_threshold(thresholds[0], thresholds[1], NO_AUTOMATIC_FULL_COLLECTION)
         try:
             self.clock.start()
             while not self.mission.finished:
                 self.tick()
             self.listen_for_final_report()
         finally:
+            gc.set_threshold(*thresholds)
             signal.signal(signal.SIGINT, previous)
             self.clock.leave()
 
