@@ -3,9 +3,10 @@ calls cfstack.fly in a loop flies them: each worker imports the ground station o
 own entry point (cfstack.cli.main: its parser, checks, one-line refusals and exit codes) for flight after
 flight. Every flight still starts its own emulator child and flies it over zenoh, as the command does.
 
-Why: a fresh `cfstack fly` process spends about a CPU-second importing the ground station before it flies
-(`python -c "import groundstation.session, groundstation.planned, groundstation.cli"`: 0.8-1.0 s on this
-project's 2-core machines); the acceptance batches fly 66 lockstep flights, CPU-bound.
+Why: a fresh `cfstack fly` process spends most of a CPU-second starting before it flies (`python -c "import
+groundstation.session, groundstation.planned, groundstation.cli"`: 0.58-1.01 s on this project's 2-core
+machines); the acceptance batches fly 66 lockstep flights, CPU-bound. The impaired batch took 69.3 s this way
+against 103.5 s as `cfstack fly` processes (one run each, by hand, 2026-11-28).
 tests/groundstation/test_fly_batch.py checks that a flight flown here is the command's flight, byte for byte.
 
 Takes in: command lines (the words after `cfstack fly`), keyed by the caller, and how many fly at once.
