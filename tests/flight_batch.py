@@ -7,7 +7,8 @@ Why: a fresh `cfstack fly` process spends most of a CPU-second starting before i
 groundstation.session, groundstation.planned, groundstation.cli"`: 0.58-1.01 s on this project's 2-core
 machines); the acceptance batches fly 66 lockstep flights, CPU-bound. The impaired batch took 69.3 s this way
 against 103.5 s as `cfstack fly` processes (one run each, by hand, 2026-11-28).
-tests/groundstation/test_fly_batch.py checks that a flight flown here is the command's flight, byte for byte.
+tests/groundstation/test_impaired_flights.py checks that a flight flown here (by a worker that has flown others
+before it) is the command's flight, byte for byte.
 
 Takes in: command lines (the words after `cfstack fly`), keyed by the caller, and how many fly at once.
 Gives out: per key (exit code, the --json summary or None, the tail of the flight's stderr).
