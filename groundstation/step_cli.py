@@ -9,7 +9,8 @@ object (the summary with "step" and "lab_fig1"). With --ablate: the same step fl
 once with each modelled cause of the hardware/simulation gap made ideal in turn (radio latency, the onboard
 PID and its estimator vs the ideal law, the onboard estimator, motor lag, PWM/battery, the mass offset, the
 whole vehicle draw), as
-a table (stdout, and ablation.csv) and an overlay plot (ablation.png) in the log folder.
+a table (stdout, and ablation.csv) and an overlay plot (ablation.png) in the log folder; --jobs flights at
+once (spawned processes, each with its own emulator child), a progress line on stderr as each ends.
 Exit code 0 when the flight (every flight with --ablate) reached its goal, 1 otherwise, 2 for bad input.
 """
 
@@ -20,8 +21,12 @@ import copy
 import csv
 import dataclasses
 import math
+import multiprocessing
+import os
 import re
 import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
@@ -40,8 +45,8 @@ from groundstation.step_analysis import StepMetrics, analyze_step, plot_step
 from groundstation.trajectories.basic import Step, load_trajectory_params
 from link.transports.zenoh_session import zenoh_options_from_args
 from model.config import Params, builtin_path, resolve
-from model.errors import OneLineParser
-from model.options import float_in, non_negative_float
+from model.errors import OneLineParser, UserError
+from model.options import float_in, non_negative_float, whole_number
 
 # The lab's experiment (lab report, section II): what `cfstack step` flies unless told otherwise.
 LAB_EXPERIMENT = {"mode": "attitude", "radio": "lab", "firmware": "crazyflie", "vehicle_model": "cf21",
@@ -94,12 +99,18 @@ def command(argv: list[str]) -> int:
     g.add_argument("--ablate", action="store_true",
                    help="fly the step once as configured and once with each modelled cause made ideal in turn; "
                         "a table and an overlay plot of what makes hardware differ from the ideal simulation")
+    g.add_argument("--jobs", type=whole_number(1, "a number of flights"), default=None,
+                   help="with --ablate: flights flown at once, each with its own emulator (default: the number "
+                        "of CPUs; 1 with --connect, whose one vehicle flies them in turn). Lockstep flights are "
+                        "the same whatever the number")
     _flight_arguments(p)
     _emulator_arguments(p)
     p.set_defaults(**LAB_EXPERIMENT)
     args = _parsed(p, argv)
+    if args.jobs is not None and not args.ablate:
+        raise UserError("--jobs: only --ablate flies more than one flight")
     if args.ablate:
-        return _ablate(args, defaults)
+        return _ablate(args, defaults, _ablation_jobs(args))
     metrics, summary, png, _ = _fly_step(args, defaults)
     lab = load_lab_fig1()
     summary = summary | {"step": dataclasses.asdict(metrics), "step_plot": str(png), "lab_fig1": lab}
@@ -178,23 +189,62 @@ def _fmt(value, unit: str) -> str:
     return f"{value:.3f}{(' ' + unit) if unit else ''}"
 
 
-def _ablate(args, defaults) -> int:
-    """Every ablation flown in turn; the table, ablation.csv and ablation.png in the parent log folder."""
+def _ablation_jobs(args) -> int:
+    """Flights of --ablate flown at once: each has its own emulator child, except with --connect."""
+    if zenoh_options_from_args(args).get("connect"):
+        if args.jobs not in (None, 1):
+            raise UserError(f"--jobs {args.jobs}: with --connect the flights share one vehicle; use --jobs 1")
+        return 1
+    return min(args.jobs or os.cpu_count() or 1, len(ABLATIONS))
+
+
+def _ablate(args, defaults, jobs: int) -> int:
+    """Every ablation flown (jobs at once); the table, ablation.csv and ablation.png in the parent log folder."""
     folder = Path(args.log) if args.log else Path("flights") / "ablation"
     folder.mkdir(parents=True, exist_ok=True)
-    rows, responses, failed = [], [], 0
-    for i, ablation in enumerate(ABLATIONS, start=1):
-        print(f"[{i}/{len(ABLATIONS)}] {ablation.label}", file=sys.stderr, flush=True)
-        run_args = _ablation_args(args, ablation, folder)
-        metrics, summary, _, response = _fly_step(run_args, defaults)
-        failed += not summary["reached_goal"]
-        rows.append((ablation, metrics, summary["result"]))
-        responses.append((ablation, metrics, response))
+    runs = [_ablation_args(args, ablation, folder) for ablation in ABLATIONS]
+    print(f"{len(ABLATIONS)} flights, {jobs} at once; logs in {folder}", file=sys.stderr, flush=True)
+    flown = _fly_ablations(runs, defaults, jobs)
+    pairs = list(zip(ABLATIONS, flown, strict=True))
+    rows = [(ablation, metrics, summary["result"]) for ablation, (metrics, summary, _) in pairs]
+    responses = [(ablation, metrics, response) for ablation, (metrics, _, response) in pairs]
+    failed = sum(not summary["reached_goal"] for _, summary, _ in flown)
     _write_table(folder / "ablation.csv", rows)
     png = _plot_overlay(folder / "ablation.png", responses, args.axis)
     print(ablation_table(rows, load_lab_fig1(), args.axis))
     print(f"table: {folder / 'ablation.csv'}\nplot: {png}")
     return 0 if failed == 0 else 1
+
+
+def _fly_ablations(runs: list, defaults, jobs: int) -> list[tuple[StepMetrics, dict, tuple]]:
+    """(metrics, summary, response) of each run, in order; a progress line as each flight ends. With jobs > 1
+    they fly in spawned worker processes (the ground station's loop holds the GIL)."""
+    flown: dict[int, tuple] = {}
+
+    def done(i: int, result: tuple) -> None:
+        flown[i] = result
+        print(f"[{len(flown)}/{len(runs)}] {ABLATIONS[i].label}: {result[1]['result']}", file=sys.stderr, flush=True)
+
+    if jobs == 1:
+        for i, run in enumerate(runs):
+            done(i, _fly_ablation(run, defaults))
+        return [flown[i] for i in range(len(runs))]
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(_fly_ablation, run, defaults): i for i, run in enumerate(runs)}
+        try:
+            for future in as_completed(futures):
+                done(futures[future], future.result())
+        except BrokenProcessPool:
+            raise FlightFailed("a flight's worker process died; the flights that ended are in their log "
+                               "folders, the table was not written") from None
+        finally:
+            pool.shutdown(cancel_futures=True)
+    return [flown[i] for i in range(len(runs))]
+
+
+def _fly_ablation(run, defaults) -> tuple[StepMetrics, dict, tuple]:
+    metrics, summary, _, response = _fly_step(run, defaults)
+    return metrics, summary, response
 
 
 def _ablation_args(args, ablation: Ablation, folder: Path):

@@ -112,6 +112,7 @@ def test_a_crash_says_what_was_touched_where_and_when(flights):
     ("fly", "--rate", "-5"), ("fly", "--rate", "0"), ("fly", "--rate", "nan"), ("fly", "--speed", "0"),
     ("fly", "--margin", "-1"), ("fly", "--mode", "foo"), ("fly", "--seed", "abc"), ("fly", "--accel", "inf"),
     ("fly", "--vehicle", "300"), ("step", "--size", "0"), ("step", "--rate", "-1"),
+    ("step", "--jobs", "0"),
     ("groundstation", "--rate", "inf"), ("groundstation", "--vehicle", "0"), ("sweep", "--jobs", "0"),
     ("plan", "--margin", "nan"), ("emulator", "--seed", "-1"),
 ])

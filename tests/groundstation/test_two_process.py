@@ -86,13 +86,21 @@ def test_the_readme_two_process_session_flies_with_the_defaults(emulator, tmp_pa
     assert 0 < link["uplink_delivered"] <= link["uplink_sent"] and link["uplink_lost"] >= 0
 
 
+def _last_phase(states: Path) -> str | None:
+    """The phase column of the last whole row of a states.csv being written (None before the first row)."""
+    lines = states.read_bytes()[-4000:].split(b"\n")[1:-1] if states.exists() else []
+    return lines[-1].split(b",")[1].decode() if lines else None
+
+
 def test_a_killed_ground_station_then_a_reset_flies_again(emulator, tmp_path):
     first = subprocess.Popen([sys.executable, "-m", "cfstack", "groundstation", *HOVER, "--log", str(tmp_path / "a")],
                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # killed once it tracks the hover point (1 m up, 5.9 s into the flight), not at the end of the hold
     states = tmp_path / "a" / "states.csv"
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and b"hover" not in (states.read_bytes()[-4000:] if states.exists() else b""):
+    while time.monotonic() < deadline and _last_phase(states) != "track":
         time.sleep(0.2)
+    assert _last_phase(states) == "track"
     first.send_signal(signal.SIGKILL)
     first.wait(timeout=10)
     # no more setpoints: the firmware's watchdog levels, then stops the motors, and the vehicle falls
