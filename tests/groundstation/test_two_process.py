@@ -2,6 +2,8 @@
 their defaults (realtime clock, zenoh on tcp/127.0.0.1:7447), then what a user does when a ground station
 dies mid-flight: the vehicle's watchdog lets it fall, the emulator reports the crash, the next ground station
 says so with the way out, and `--reset` reboots the vehicle and flies. Link counters are per session.
+The killed session runs on its own endpoint from the module's start, beside the README session (both are
+realtime flights: wall clock, not CPU).
 """
 
 import json
@@ -11,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -33,11 +36,13 @@ def _port_free(port: int) -> bool:
 
 
 class Emulator:
-    """`cfstack emulator` with no options; its stderr lines collected as they come."""
+    """`cfstack emulator` with the given options (none: the README's defaults); its stderr lines collected as
+    they come."""
 
-    def __init__(self):
-        self.proc = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator"], stdin=subprocess.DEVNULL,
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    def __init__(self, *options: str):
+        self.proc = subprocess.Popen([sys.executable, "-m", "cfstack", "emulator", *options],
+                                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                     text=True)
         self.lines: list[str] = []
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -92,30 +97,58 @@ def _last_phase(states: Path) -> str | None:
     return lines[-1].split(b",")[1].decode() if lines else None
 
 
-def test_a_killed_ground_station_then_a_reset_flies_again(emulator, tmp_path):
-    first = subprocess.Popen([sys.executable, "-m", "cfstack", "groundstation", *HOVER, "--log", str(tmp_path / "a")],
-                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    # killed once it tracks the hover point (1 m up, 5.9 s into the flight), not at the end of the hold
-    states = tmp_path / "a" / "states.csv"
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and _last_phase(states) != "track":
-        time.sleep(0.2)
-    assert _last_phase(states) == "track"
-    first.send_signal(signal.SIGKILL)
-    first.wait(timeout=10)
-    # no more setpoints: the firmware's watchdog levels, then stops the motors, and the vehicle falls
-    crash_line = emulator.wait_for("crashed", 30)
-    assert "hit the floor" in crash_line and "--reset" in crash_line
+def _killed_then_reset(folder: Path) -> dict:
+    """A user's session on their own endpoint: a ground station killed while it flies, the crash the emulator
+    reports, the next ground station's refusal, then `--reset`. What each step gave, for the test to judge."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    connect = ("--connect", endpoint, "--id", f"k{uuid.uuid4().hex[:8]}")  # its own keys: no other session's
+    emu = Emulator("--listen", endpoint, *connect[2:])
+    try:
+        emu.wait_for("emulator up", 30)
+        first = subprocess.Popen([sys.executable, "-m", "cfstack", "groundstation", *HOVER, *connect,
+                                  "--log", str(folder / "a")],
+                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        # killed once it tracks the hover point (1 m up, 5.9 s into the flight), not at the end of the hold
+        states = folder / "a" / "states.csv"
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and _last_phase(states) != "track":
+            time.sleep(0.2)
+        killed_in = _last_phase(states)
+        first.send_signal(signal.SIGKILL)
+        first.wait(timeout=10)
+        # no more setpoints: the firmware's watchdog levels, then stops the motors, and the vehicle falls
+        crash_line = emu.wait_for("crashed", 30)
+        refused = groundstation(folder / "b", *connect)
+        reset = groundstation(folder / "c", *connect, "--reset")
+        return {"endpoint": endpoint, "killed_in": killed_in, "crash_line": crash_line, "refused": refused,
+                "reset": reset, "emulator_lines": list(emu.lines)}
+    finally:
+        emu.stop()
 
-    refused, summary = groundstation(tmp_path / "b")
+
+@pytest.fixture(scope="module", autouse=True)
+def killed_session(tmp_path_factory):
+    """The killed-ground-station session, started with the module on its own emulator: it flies (in realtime,
+    ~45 s of wall clock, a fraction of a core) while the README session flies on the default endpoint."""
+    folder = tmp_path_factory.mktemp("killed")
+    with ThreadPoolExecutor(1) as pool:
+        yield pool.submit(_killed_then_reset, folder)
+
+
+def test_a_killed_ground_station_then_a_reset_flies_again(killed_session):
+    session = killed_session.result()
+    assert session["killed_in"] == "track"
+    assert "hit the floor" in session["crash_line"] and "--reset" in session["crash_line"]
+
+    refused, summary = session["refused"]
     assert refused.returncode == 1 and summary["result"] == "crashed"
     message = refused.stderr.strip().splitlines()[-1]
     assert "already reports CRASHED" in message and "--reset" in message
 
-    reset, summary = groundstation(tmp_path / "c", "--reset")
+    reset, summary = session["reset"]
     assert reset.returncode == 0 and summary["result"] == "reached_goal", reset.stderr
     assert summary["mission"]["vehicle_resets"] == 1
-    assert len([line for line in emulator.lines if "reset by a ground station's REBOOT" in line]) == 1
+    assert len([line for line in session["emulator_lines"] if "reset by a ground station's REBOOT" in line]) == 1
     # the vehicle's uplink counters are this session's, not the emulator's lifetime totals
     link = summary["link"]
     assert 0 < link["uplink_delivered"] <= link["uplink_sent"] and link["uplink_lost"] >= 0
