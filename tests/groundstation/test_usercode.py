@@ -9,6 +9,7 @@ import csv
 import json
 import logging
 import math
+import subprocess
 import sys
 import textwrap
 import time
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from testsupport import cfstack, shared_world
+from testsupport import SHARED_WORLDS, cfstack, shared_world
 
 from groundstation.controller import ControllerState, SE3Controller, load_gains
 from groundstation.logread import read_log
@@ -328,12 +329,44 @@ def _landed_and_readable(log: Path) -> None:
     assert _summary(log)["landing"]["result"] == "landed"
 
 
+# The module's `cfstack fly` flights of users' code, each with the world it needs (None: no world).
+CLI_FLIGHTS = {
+    "student_a": ("test_lab_1", ("--controller", str(STUDENTS / "student_a"), "--trajectory",
+                                 str(STUDENTS / "student_a"), "--radio", "lab")),
+    "motor_speeds": ("test_lab_2", ("--controller", str(STUDENTS / "motor_speeds_only"), "--controller-output",
+                                    "motor_speeds", "--planner", str(STUDENTS / "student_a"), "--trajectory",
+                                    "constant-speed", "--radio", "lab")),
+    "controller_raises": (None, ("--controller", f"{STUDENTS / 'broken' / 'se3_control.py'}:Raises",
+                                 "--trajectory", "hover", "--radio", "lab")),
+    "trajectory_raises": ("test_empty", ("--trajectory", str(STUDENTS / "broken"), "--radio", "lab")),
+}
+
+
+@pytest.fixture(scope="module")
+def cli_flights(tmp_path_factory) -> dict[str, tuple[subprocess.CompletedProcess, Path]]:
+    """Each CLI_FLIGHTS flight whose world is here, flown two at a time (a lockstep flight keeps about one
+    core busy): (the finished `cfstack fly`, its log folder). The tests judge them one by one."""
+    root = tmp_path_factory.mktemp("usercode_cli")
+    argv = {}
+    for name, (world, options) in CLI_FLIGHTS.items():
+        world_path = () if world is None else (str(SHARED_WORLDS / f"{world}.json"),)
+        if all(Path(w).is_file() for w in world_path):
+            argv[name] = ("fly", *world_path, *options, "--log", str(root / name))
+    with ThreadPoolExecutor(2) as pool:
+        futures = {name: pool.submit(cfstack, *words) for name, words in argv.items()}
+        return {name: (future.result(), root / name) for name, future in futures.items()}
+
+
+def _cli_flight(cli_flights: dict, name: str) -> tuple[subprocess.CompletedProcess, Path]:
+    world = CLI_FLIGHTS[name][0]
+    if world is not None:
+        shared_world(world)  # skips, saying why, when the world is absent
+    return cli_flights[name]
+
+
 @pytest.mark.slow
-def test_cli_flies_a_students_controller_and_trajectory_through_a_lab_maze(tmp_path):
-    world = shared_world("test_lab_1")
-    log = tmp_path / "flight"
-    done = cfstack("fly", str(world), "--controller", str(STUDENTS / "student_a"), "--trajectory",
-                   str(STUDENTS / "student_a"), "--radio", "lab", "--log", str(log))
+def test_cli_flies_a_students_controller_and_trajectory_through_a_lab_maze(cli_flights):
+    done, log = _cli_flight(cli_flights, "student_a")
     assert done.returncode == 0, done.stderr
     summary = _summary(log)
     assert summary["reached_goal"] and not summary["collided"] and summary["mode"] == "moments"
@@ -366,11 +399,8 @@ def test_api_flies_a_min_snap_trajectory_and_an_attitude_controller_through_a_co
 
 
 @pytest.mark.slow
-def test_motor_speeds_controller_with_a_users_planner_flies_a_lab_maze(tmp_path):
-    log = tmp_path / "flight"
-    done = cfstack("fly", str(shared_world("test_lab_2")), "--controller", str(STUDENTS / "motor_speeds_only"),
-                   "--controller-output", "motor_speeds", "--planner", str(STUDENTS / "student_a"),
-                   "--trajectory", "constant-speed", "--radio", "lab", "--log", str(log))
+def test_motor_speeds_controller_with_a_users_planner_flies_a_lab_maze(cli_flights):
+    done, log = _cli_flight(cli_flights, "motor_speeds")
     assert done.returncode == 0, done.stderr
     summary = _summary(log)
     assert summary["reached_goal"] and not summary["collided"]
@@ -382,10 +412,8 @@ def test_motor_speeds_controller_with_a_users_planner_flies_a_lab_maze(tmp_path)
 
 
 @pytest.mark.slow
-def test_a_controller_that_raises_mid_flight_gets_one_line_and_the_vehicle_lands(tmp_path):
-    log = tmp_path / "flight"
-    done = cfstack("fly", "--controller", f"{STUDENTS / 'broken' / 'se3_control.py'}:Raises", "--trajectory",
-                   "hover", "--radio", "lab", "--log", str(log))
+def test_a_controller_that_raises_mid_flight_gets_one_line_and_the_vehicle_lands(cli_flights):
+    done, log = _cli_flight(cli_flights, "controller_raises")
     assert done.returncode == 1
     line = [x for x in done.stderr.splitlines() if x.startswith("cfstack fly:")]
     assert len(line) == 1
@@ -401,10 +429,8 @@ def test_a_controller_that_raises_mid_flight_gets_one_line_and_the_vehicle_lands
 
 
 @pytest.mark.slow
-def test_a_trajectory_that_raises_mid_flight_lands_the_vehicle(tmp_path):
-    log = tmp_path / "flight"
-    done = cfstack("fly", str(shared_world("test_empty")), "--trajectory", str(STUDENTS / "broken"),
-                   "--radio", "lab", "--log", str(log))
+def test_a_trajectory_that_raises_mid_flight_lands_the_vehicle(cli_flights):
+    done, log = _cli_flight(cli_flights, "trajectory_raises")
     assert done.returncode == 1
     assert "user code world_traj.py WorldTraj.update at t=" in done.stderr and "IndexError" in done.stderr
     _landed_and_readable(log)
