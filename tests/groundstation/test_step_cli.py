@@ -5,6 +5,7 @@ import csv
 import json
 import os
 import re
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 from testsupport import SHARED_WORLDS, cfstack
@@ -28,7 +29,11 @@ def test_the_lab_figures_are_the_reports():
 
 
 def test_the_default_step_is_the_labs_experiment_reported_beside_fig1(tmp_path):
-    run = cfstack("step", "--axis", "y", "--size", "0.5", "--json", "--log", str(tmp_path / "log"))
+    with ThreadPoolExecutor(2) as pool:  # the JSON and the human report at once: two independent lockstep flights
+        words = ("step", "--axis", "y", "--size", "0.5")
+        as_json = pool.submit(cfstack, *words, "--json", "--log", str(tmp_path / "log"))
+        as_text = pool.submit(cfstack, *words, "--log", str(tmp_path / "again"))
+        run, human = as_json.result(), as_text.result().stdout
     assert run.returncode in (0, 1), run.stderr
     summary = json.loads(run.stdout)
     assert summary["mode"] == "attitude" and summary["firmware"] == "crazyflie"
@@ -37,7 +42,6 @@ def test_the_default_step_is_the_labs_experiment_reported_beside_fig1(tmp_path):
     step = summary["step"]
     assert step["target_m"] - step["initial_m"] == pytest.approx(0.5)
     assert summary["lab_fig1"]["percent_overshoot"] == 32.0
-    human = cfstack("step", "--axis", "y", "--size", "0.5", "--log", str(tmp_path / "again")).stdout
     for key, _, definition in METRICS:
         assert re.search(rf"^{key}\s+\S+.*{re.escape(definition)}$", human, re.M), key
     assert "rise_time_s" in human and "rise_time_10_90_s" in human
