@@ -422,7 +422,15 @@ class VehicleNode:
 
     def _push_radio_status(self, t: float) -> None:
         self.next_radio_status_s += RADIO_STATUS_PERIOD_S
-        status = RadioStatus(**self.downlink_radio.radio_status(reverse=self.uplink_radio))
+        # The vehicle's own reception (rssi) over the uplink frames offered by t - dt - L - one firmware cycle
+        # (t the end of the step just run, L the uplink radios' least latency): a lockstep emulator running
+        # ahead (lockstep.py) starts a step only before the first firmware cycle at or after t_next + L, t_next
+        # the time of the next tick whose frames may not all be in, so every frame offered by then is; later
+        # ones may be or not, depending on when their ack came.
+        settled_s = t - self.sim.dynamics.dt_s - self.sim.firmware_period_s \
+            - min(self.uplink_radio.min_latency_s, self.crtp_uplink_radio.min_latency_s)
+        status = RadioStatus(**self.downlink_radio.radio_status(reverse=self.uplink_radio,
+                                                                reverse_offered_by_s=settled_s))
         self._offer_downlink(self.codec.encode(status), t)
 
     def _report_crash(self, step_no: int) -> None:

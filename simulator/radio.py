@@ -68,6 +68,9 @@ RSSI_MAX = 254  # MAVLink RADIO_STATUS rssi range is 0..254
 UINT16_WRAP = 1 << 16  # rx_errors and fixed are uint16 counters that wrap
 TIME_EPS_S = 1e-9  # simulation times closer than this are the same instant
 _UNIFORM_BLOCK = 4096  # uniforms drawn per call to the generator (speed only; the stream is the same)
+# Air outcomes kept beyond a status window: those of frames offered after a status's cutoff (see radio_status:
+# a few milliseconds of frames, far fewer than this), so the window before the cutoff is always whole.
+AIR_OUTCOMES_SLACK = 4096
 
 
 class DropCause(StrEnum):
@@ -285,7 +288,10 @@ class RadioChannel:
         self._waiting_starts: deque[float] = deque()  # start times of admitted frames (some may have started)
         self._last_delivery_s = -math.inf
         self._latest_index_delivered = -1
-        self._air_outcomes: deque[bool] = deque(maxlen=profile.status_window_frames)
+        # (offered s, not lost) of the frames put on the air, newest last
+        self._air_outcomes: deque[tuple[float, bool]] = deque(
+            maxlen=profile.status_window_frames + AIR_OUTCOMES_SLACK)
+        self._status_window = profile.status_window_frames
         self._read_profile(profile)
         burst = profile.burst
         self._burst_bad = burst.enabled and self._uniform() < burst.stationary_bad
@@ -386,14 +392,17 @@ class RadioChannel:
             out.append(data)
         return out
 
-    def radio_status(self, t_s: float | None = None, reverse: RadioChannel | None = None) -> dict[str, int]:
+    def radio_status(self, t_s: float | None = None, reverse: RadioChannel | None = None,
+                     reverse_offered_by_s: float = math.inf) -> dict[str, int]:
         """RADIO_STATUS fields (link.messages.RadioStatus keyword arguments) for the radio that
         transmits on this channel ("local"); `reverse` is the channel it receives on.
 
         - remote_rssi: the far end's reception = round(254 * r), r the share of the last
           `status.window_frames` frames put on the air here that were not lost (queue drops excluded);
           255 (unknown) before any frame.
-        - rssi, rx_errors, fixed: the local reception, taken from `reverse`: rssi as above,
+        - rssi, rx_errors, fixed: the local reception, taken from `reverse`: rssi as above, over the frames
+          `reverse` was offered at or before reverse_offered_by_s (a lockstep emulator running ahead may not
+          have offered later ones yet: the cutoff keeps the figure independent of when they came),
           rx_errors = corrupted copies delivered, fixed = delivered copies that needed Crazyradio
           retransmissions (uint16 counters that wrap). Without `reverse` they come from this channel
           (path loss is reciprocal, so the link is taken as symmetric).
@@ -404,7 +413,7 @@ class RadioChannel:
         t = self._last_push_s if t_s is None else t_s
         local = reverse if reverse is not None else self
         return {
-            "rssi": local._rssi(),
+            "rssi": local._rssi(reverse_offered_by_s if reverse is not None else math.inf),
             "remote_rssi": self._rssi(),
             "tx_buffer_pct": self._tx_buffer_free_pct(t),
             "noise": UINT8_UNKNOWN,
@@ -449,7 +458,7 @@ class RadioChannel:
         p = self._iid_p
         if p > 0.0 and uniform() < p and cause is None:
             cause = DropCause.IID
-        self._air_outcomes.append(cause is None)
+        self._air_outcomes.append((t_s, cause is None))
         if cause is not None:
             self.stats.dropped[cause] += 1
             self._lost = True
@@ -562,11 +571,18 @@ class RadioChannel:
             data[bit >> 3] ^= 1 << (bit & 7)
         return bytes(data), flips
 
-    def _rssi(self) -> int:
-        outcomes = self._air_outcomes
-        if not outcomes:
-            return UINT8_UNKNOWN
-        return round(RSSI_MAX * sum(outcomes) / len(outcomes))
+    def _rssi(self, offered_by_s: float = math.inf) -> int:
+        """round(254 r), r the share not lost of the last status-window frames offered at or before
+        offered_by_s; 255 (unknown) before any."""
+        delivered = counted = 0
+        for offered_s, ok in reversed(self._air_outcomes):
+            if offered_s > offered_by_s:
+                continue
+            delivered += ok
+            counted += 1
+            if counted == self._status_window:
+                break
+        return UINT8_UNKNOWN if counted == 0 else round(RSSI_MAX * delivered / counted)
 
     def _tx_buffer_free_pct(self, t_s: float) -> int:
         capacity = self.profile.queue_capacity_frames

@@ -169,6 +169,11 @@ class SimVehicle:
         heapq.heappush(self._uplinks, (t_s, self._uplink_seq, message))
         self._uplink_seq += 1
 
+    @property
+    def firmware_period_s(self) -> float:
+        """The firmware cycle's period (s): first_effect_s rounds a delivery up by less than this."""
+        return self._fw.period_s
+
     def first_effect_s(self, delivery_s: float) -> float:
         """The earliest simulation time at which a message delivered at or after delivery_s can change
         anything (a lower bound): the first firmware cycle at or after it, when every firmware cycle

@@ -490,6 +490,25 @@ def test_radio_status_reports_the_link_as_the_ledger_shows_it():
     assert status.tx_buffer_pct == 100 and status.noise == status.remote_noise == 255
 
 
+def test_the_vehicles_reception_counts_only_uplink_frames_offered_by_the_cutoff():
+    """A lockstep emulator running ahead may have offered some of a tick's uplink frames and not others when
+    it reports (fleet.VehicleNode._push_radio_status): rssi covers the window of frames offered by the cutoff,
+    as the ledger shows them, whatever was offered after it."""
+    window = 50
+    down = RadioChannel(ideal(status_window_frames=window), np.random.default_rng(1))
+    up = RadioChannel(ideal(loss_probability=0.3, status_window_frames=window), np.random.default_rng(2))
+    run(down, 10, 0.001)
+    run(up, 400, 0.001)  # offered at 0, 1, ..., 399 ms
+    cutoff_s = 0.2995  # frames 0..299 offered by then
+    fates = [f.drop_cause is None for f in up.ledger if f.offered_s <= cutoff_s][-window:]
+    assert len(fates) == window and sum(fates) < window
+    expected = round(254 * sum(fates) / window)
+    assert down.radio_status(reverse=up, reverse_offered_by_s=cutoff_s)["rssi"] == expected
+    later = [f.drop_cause is None for f in up.ledger[-window:]]
+    assert down.radio_status(reverse=up)["rssi"] == round(254 * sum(later) / window)  # no cutoff: the newest
+    assert down.radio_status(reverse=up, reverse_offered_by_s=-1.0)["rssi"] == 255  # none offered by then
+
+
 # --- configuration errors -------------------------------------------------------------------------
 
 
