@@ -324,6 +324,12 @@ class VehicleNode:
                 self._offer_crtp(UPLINK, sample, push_time_s)
 
     @property
+    def uplink_min_latency_s(self) -> float:
+        """L: the least latency of this vehicle's uplink radios, MAVLink's and CRTP's (a true lower bound on when
+        a frame offered to either reaches the vehicle; the lockstep's horizon and RADIO_STATUS's cutoff)."""
+        return min(self.uplink_radio.min_latency_s, self.crtp_uplink_radio.min_latency_s)
+
+    @property
     def uplink_released(self) -> int:
         """The ground station's frames (or CRTP packets, if it speaks CRTP) offered from held_uplink."""
         return self._released[self.ground_speaks_crtp]
@@ -427,8 +433,7 @@ class VehicleNode:
         # ahead (lockstep.py) starts a step only before the first firmware cycle at or after t_next + L, t_next
         # the time of the next tick whose frames may not all be in, so every frame offered by then is; later
         # ones may be or not, depending on when their ack came.
-        settled_s = t - self.sim.dynamics.dt_s - self.sim.firmware_period_s \
-            - min(self.uplink_radio.min_latency_s, self.crtp_uplink_radio.min_latency_s)
+        settled_s = t - self.sim.dynamics.dt_s - self.sim.firmware_period_s - self.uplink_min_latency_s
         status = RadioStatus(**self.downlink_radio.radio_status(reverse=self.uplink_radio,
                                                                 reverse_offered_by_s=settled_s))
         self._offer_downlink(self.codec.encode(status), t)

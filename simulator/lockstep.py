@@ -254,8 +254,7 @@ class LockstepClock:
         emu = self.emulator
         if not emu.config.lookahead:
             return offered_s
-        return node.sim.first_effect_s(offered_s + min(node.uplink_radio.min_latency_s,
-                                                       node.crtp_uplink_radio.min_latency_s))
+        return node.sim.first_effect_s(offered_s + node.uplink_min_latency_s)
 
     def lookahead_horizon_s(self) -> float:
         """The horizon right after a tick at tick_time_s, before any answer to it (benchmarks, tests)."""
