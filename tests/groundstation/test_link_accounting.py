@@ -174,10 +174,9 @@ def test_a_lossy_radios_tlog_is_the_same_frame_for_frame_run_to_run(tmp_path):
         for run in runs:
             assert json.loads(run.result().stdout)["result"] == "reached_goal", run.result().stderr
     assert (tmp_path / "a" / "states.csv").read_bytes() == (tmp_path / "b" / "states.csv").read_bytes()
-    frames = [[decoded.frame for _, decoded in read_tlog(tmp_path / name / "link.mavlink.tlog")] for name in "ab"]
-    assert frames[0] == frames[1]
-    rssi = [decoded.message.rssi for _, decoded in read_tlog(tmp_path / "a" / "link.mavlink.tlog")
-            if isinstance(decoded.message, RadioStatus)]
+    decoded = [[frame for _, frame in read_tlog(tmp_path / name / "link.mavlink.tlog")] for name in "ab"]
+    assert [d.frame for d in decoded[0]] == [d.frame for d in decoded[1]]
+    rssi = [d.message.rssi for d in decoded[0] if isinstance(d.message, RadioStatus)]
     assert len(rssi) >= 10 and min(rssi) < 254  # the reports saw uplink losses
 
 
