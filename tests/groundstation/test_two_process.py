@@ -101,8 +101,9 @@ def _killed_then_reset(folder: Path) -> dict:
     """A user's session on their own endpoint: a ground station killed while it flies, the crash the emulator
     reports, the next ground station's refusal, then `--reset`. What each step gave, for the test to judge."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    connect = ("--connect", endpoint, "--id", f"k{uuid.uuid4().hex[:8]}")  # its own keys: no other session's
-    emu = Emulator("--listen", endpoint, *connect[2:])
+    keys = ("--id", f"k{uuid.uuid4().hex[:8]}")  # its own keys: no other session's frames
+    connect = ("--connect", endpoint, *keys)
+    emu = Emulator("--listen", endpoint, *keys)
     try:
         emu.wait_for("emulator up", 30)
         first = subprocess.Popen([sys.executable, "-m", "cfstack", "groundstation", *HOVER, *connect,
