@@ -98,6 +98,7 @@ def test_the_summary_says_which_records_were_in_how_long_the_loop_waited_and_its
         _use_cpu(WORK_S)
         clock.release(clock.now() + PERIOD_S)
         clock.done()
+    clock.leave()  # the loop's end: its CPU times are read here
     summary = clock.critical_path_summary()
     # the first tick's wait is the emulator's boot, no tick's: of the others, ticks 2 and 4 were in, 1, 3, 5 late
     assert summary["tick_record_ready_fraction"] == 2 / 6
@@ -132,6 +133,7 @@ def test_the_loop_threads_cpu_per_tick_is_its_own_work_not_the_other_threads_nor
             stop.set()
             helper.join()
         clock.done()
+    clock.leave()
     summary = clock.critical_path_summary()
     loop_us, process_us = summary["loop_thread_cpu_us_per_tick"], summary["process_cpu_us_per_tick"]
     # the four ticks' work in this thread; the three late records' waits (sleeps) add no CPU
