@@ -3,8 +3,8 @@
 Takes in: the loop period; for lockstep, the clock transport and the vehicle link (to count frames).
 Gives out: `wait()` -> the time of the tick to compute (s); `release(next_wakeup_s)` as soon as the
 tick's commands are sent (lockstep: the ack, so the emulator steps on while the tick's bookkeeping and
-log row are written); `done()` when the tick's work is finished; `next_tick_time_s()`, when the next tick is
-due; tick timing statistics (tick duration, lateness, deadline misses).
+log row are written); `done()` when the tick's work is finished; tick timing statistics (tick duration,
+lateness, deadline misses).
 """
 
 from __future__ import annotations
@@ -91,10 +91,6 @@ class RealtimeClock:
         self.timer.start()
         return t
 
-    def next_tick_time_s(self) -> float:
-        """The time the next tick is due (a tick a whole period late is skipped ahead instead)."""
-        return self.next_s
-
     def release(self, next_wakeup_s: float) -> None:
         """Nothing to tell anyone: the period decides the next tick."""
 
@@ -134,7 +130,6 @@ class LockstepClock:
         self.timer = TickTimer(period_s)
         self.tick = -1
         self.t_s = 0.0
-        self._time_ns = 0
         self.ticks = 0
         # The lockstep's critical path per tick: from the tick's record being taken to its ack being sent
         # (the tick's frames decoded, estimator, mission, controller, commands sent). The emulator waits
@@ -183,7 +178,6 @@ class LockstepClock:
         self.link.deliver(target)  # this tick's samples only: a later tick's may be here already
         self.tick = tick.tick
         self.t_s = tick.time_s
-        self._time_ns = tick.time_ns
         self.ticks += 1
         self.timer.start()
         return self.t_s
@@ -226,11 +220,6 @@ class LockstepClock:
             if tick is not None and tick.tick > last:
                 self._ticks.append(tick)
                 last = tick.tick
-
-    def next_tick_time_s(self) -> float:
-        """The time of the tick after this one as the standing period asks for it (the emulator takes the
-        first physics step at or after it)."""
-        return (self._time_ns + self.period_ns) / NS_PER_S
 
     def release(self, next_wakeup_s: float) -> None:
         """Ack the tick: every uplink frame of it is sent. The emulator may step on from here."""

@@ -352,20 +352,7 @@ class FlightLoop:
         self.clock.release(now + self.period_s)
         self.after_release(now, step, out)
         self.check_health(now)
-        self.sample_reference_ahead()
         self.clock.done()
-
-    def sample_reference_ahead(self) -> None:
-        """Sample now the reference the next tick's controller will fly (Mission.sample_ahead): at the next
-        tick's time, plus the uplink latency where it is compensated (control()). In lockstep the emulator
-        steps meanwhile, so the sample (15-20 us of a circle's or a maze's, measured in flight) leaves the
-        next tick's critical path. If that tick's phase, its time or the latency differ from what they are
-        now, it samples as usual."""
-        next_s = self.clock.next_tick_time_s()
-        latency = self.uplink_latency_s() if self.compensator is not None else None
-        if latency is not None and self.mission.phase in COMPENSATED_PHASES:
-            next_s += latency
-        self.mission.sample_ahead(next_s)
 
     def write_row(self, now: float, step, out) -> None:
         est = self.estimate

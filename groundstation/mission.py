@@ -216,7 +216,6 @@ class Mission:
         self.phase = Phase.CONNECT
         self.phase_start_s = 0.0
         self.segment: Trajectory | None = None
-        self._ahead: tuple[Trajectory, float, FlatOutput] | None = None  # (segment, its time, sample): sample_ahead
         self.track_start_s: float | None = None
         self.reached_goal_s: float | None = None
         self.result: str | None = None  # reached_goal | timeout | failsafe | aborted | crashed
@@ -250,31 +249,8 @@ class Mission:
         self.segment = segment
 
     def _on_segment(self, t: float) -> MissionStep:
-        """This tick's step: the current phase, flying the current segment at t (sampled when read, or
-        already, by sample_ahead)."""
-        segment_t_s = t - self.phase_start_s
-        ahead = self._sampled_ahead(segment_t_s)
-        if ahead is not None:
-            return MissionStep(self.phase, ahead)
-        return MissionStep.on_segment(self.phase, self.segment, segment_t_s)
-
-    def sample_ahead(self, t: float) -> None:
-        """Sample the current segment at flight time t now, for a later tick that will ask for it there
-        (the flight loop, for its next tick, once this one's commands are sent: the sample is then off that
-        tick's critical path). Pure segments only (Trajectory.sample_is_pure: their sample is the same
-        whenever it is taken); if that tick is on another segment or another time, it samples as usual."""
-        if self.segment is None or not getattr(self.segment, "sample_is_pure", False):
-            return
-        segment_t_s = t - self.phase_start_s
-        self._ahead = (self.segment, segment_t_s, self.segment.sample(segment_t_s))
-
-    def _sampled_ahead(self, segment_t_s: float) -> FlatOutput | None:
-        """The sample_ahead sample of the current segment at segment_t_s (taken once), else None."""
-        ahead = self._ahead
-        if ahead is None or ahead[0] is not self.segment or ahead[1] != segment_t_s:
-            return None
-        self._ahead = None
-        return ahead[2]
+        """This tick's step: the current phase, flying the current segment at t (sampled when read)."""
+        return MissionStep.on_segment(self.phase, self.segment, t - self.phase_start_s)
 
     def _hold(self, position: np.ndarray, t: float) -> Trajectory:
         return Hover(np.asarray(position, float), duration_s=1e9)
@@ -308,9 +284,7 @@ class Mission:
         """The current phase's reference at another time t (latency compensation looks ahead)."""
         if self.segment is None:
             return None
-        segment_t_s = t - self.phase_start_s
-        ahead = self._sampled_ahead(segment_t_s)
-        return ahead if ahead is not None else self.segment.sample(segment_t_s)
+        return self.segment.sample(t - self.phase_start_s)
 
     @property
     def finished(self) -> bool:

@@ -31,8 +31,7 @@ class Trajectory(Protocol):
     """A reference to track. Before 0 it holds the start, after `duration_s` the end, at rest.
 
     Optional `sample_is_pure` (class attribute, default False): True when sample(t) depends on t alone
-    and never raises, so the mission may sample it later than the tick that asked (MissionStep), or before
-    it asks (Mission.sample_ahead)."""
+    and never raises, so the mission may sample it later than the tick that asked (MissionStep)."""
 
     duration_s: float
 

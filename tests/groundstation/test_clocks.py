@@ -141,33 +141,3 @@ def test_the_loop_threads_cpu_per_tick_is_its_own_work_not_the_other_threads_nor
     # the process's CPU holds this thread's and the other thread's (both measured by the kernel's CPU clocks)
     assert helper_cpu_s[0] > 0.01
     assert process_us * 4 >= (loop_us * 4 + helper_cpu_s[0] * 1e6) - 1e3
-
-
-def test_the_next_ticks_time_is_the_standing_period_after_this_ticks_record():
-    transport = LateTicks(3)
-    clock = LockstepClock(PERIOD_S, NoFrames(), transport)
-    for k in range(3):
-        clock.wait()
-        # the record's nanoseconds plus the period's, as the emulator stamps its next tick (link.clock.ClockTick)
-        assert clock.next_tick_time_s() == (round(k * PERIOD_S * 1e9) + round(PERIOD_S * 1e9)) / 1e9
-        clock.release(clock.now() + PERIOD_S)
-        clock.done()
-
-
-def test_a_realtime_clocks_next_tick_time_is_the_time_its_next_wait_returns():
-    from groundstation.clocks import RealtimeClock
-
-    class Idle:
-        def pump(self, timeout_s=0.0):
-            time.sleep(timeout_s)
-
-    period_s = 0.05  # long enough that a busy machine is not a whole period late (a late tick is skipped ahead)
-    clock = RealtimeClock(period_s, Idle())
-    clock.start()
-    t = clock.wait()
-    for _ in range(3):
-        predicted = clock.next_tick_time_s()
-        assert predicted == t + period_s
-        clock.done()
-        t = clock.wait()
-        assert t == predicted

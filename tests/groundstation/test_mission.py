@@ -229,10 +229,6 @@ def test_a_pure_segment_is_sampled_when_the_reference_is_read_with_the_tick_time
     assert step.reference is step.reference  # sampled once, then kept
 
 
-class PureCountingTrack(CountingTrack):
-    sample_is_pure = True
-
-
 def one_tick_into_tracking(track: CountingTrack):
     """A mission flying `track` taken to TRACK, then one tick more: (mission, that tick's time, its step,
     how many samples the track had been asked for before that tick)."""
@@ -262,67 +258,12 @@ def test_a_chain_is_pure_only_when_all_its_segments_are():
 
 
 def test_a_pure_segment_is_not_sampled_until_the_reference_is_read():
+    class PureCountingTrack(CountingTrack):
+        sample_is_pure = True
+
     track = PureCountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
     m, t, step, asked_before = one_tick_into_tracking(track)
     assert len(track.asked) == asked_before  # off the critical path: nothing sampled yet
     first, second = step.reference, step.reference
     assert first is second
     assert track.asked[asked_before:] == [t - m.track_start_s]
-
-
-def _same_flat_output(a, b) -> None:
-    for name in ("position_m", "velocity_mps", "acceleration_mps2", "jerk_mps3", "snap_mps4"):
-        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
-    assert (a.yaw_rad, a.yaw_rate_radps) == (b.yaw_rad, b.yaw_rate_radps)
-
-
-def test_a_sample_taken_ahead_is_the_next_ticks_reference_and_the_segment_is_not_asked_again():
-    track = PureCountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
-    m, t, _, _ = one_tick_into_tracking(track)
-    m.sample_ahead(t + DT)  # after this tick's commands: the next tick's time
-    asked = len(track.asked)
-    assert track.asked[-1] == t + DT - m.track_start_s
-    step = m.update(t + DT, view(t + DT, [0, 0, 1]))
-    _same_flat_output(step.reference, track.track.sample(t + DT - m.track_start_s))
-    assert len(track.asked) == asked  # the sample taken ahead, not a new one
-    # taken once: the same time asked again (compensation reads other times) samples the segment
-    m.reference_at(t + DT)
-    assert len(track.asked) == asked + 1
-
-
-def test_the_reference_at_a_compensated_time_is_taken_ahead_too():
-    track = PureCountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
-    m, t, _, _ = one_tick_into_tracking(track)
-    latency = 0.004
-    m.sample_ahead(t + DT + latency)
-    asked = len(track.asked)
-    step = m.update(t + DT, view(t + DT, [0, 0, 1]))  # this tick's own time: not the one taken ahead
-    ahead = m.reference_at(t + DT + latency)
-    assert len(track.asked) == asked  # the step's own sample waits until read; the compensated one was ready
-    _same_flat_output(ahead, track.track.sample(t + DT + latency - m.track_start_s))
-    _same_flat_output(step.reference, track.track.sample(t + DT - m.track_start_s))
-
-
-def test_a_sample_taken_ahead_for_another_time_or_segment_is_not_used():
-    track = PureCountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
-    m, t, _, _ = one_tick_into_tracking(track)
-    m.sample_ahead(t + DT)
-    late = t + 2 * DT  # the next tick came later than asked (a late realtime tick)
-    step = m.update(late, view(late, [0, 0, 1]))
-    _same_flat_output(step.reference, track.track.sample(late - m.track_start_s))
-    # ahead of a phase change: the new phase's segment starts at its own time
-    m.sample_ahead(late + DT)
-    m.request_abort()
-    step = m.update(late + DT, view(late + DT, [0.5, 0, 1]))
-    assert step.phase == Phase.LAND and m.segment is not track
-    _same_flat_output(step.reference, m.segment.sample(late + DT - m.phase_start_s))
-
-
-def test_a_segment_that_may_keep_state_is_not_sampled_ahead():
-    track = CountingTrack(Line([0, 0, 1], [1, 0, 1], speed_mps=0.5))
-    m, t, _, _ = one_tick_into_tracking(track)
-    asked = len(track.asked)
-    m.sample_ahead(t + DT)
-    assert len(track.asked) == asked
-    m.update(t + DT, view(t + DT, [0, 0, 1]))
-    assert track.asked[asked:] == [t + DT - m.track_start_s]  # in the tick's order, when it asks
