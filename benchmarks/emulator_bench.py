@@ -26,6 +26,7 @@ The responder child is this file: python benchmarks/emulator_bench.py --responde
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -42,8 +43,8 @@ from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
 from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
 from link.messages import AttitudeTarget, CommandKind, ExternalPose, MocapPose, ThrustMoment, VehicleCommand
 from link.transports import open_transport
-from link.transports.base import free_loopback_port
 from link.transports.zenoh_process import use_lockstep_settings
+from link.transports.zenoh_session import PrivateEndpoint
 from model.radio import load_radio_profile
 from model.vehicle import FIRMWARE_VEHICLES, GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
@@ -142,11 +143,12 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
     the responder sends (FLOWN)."""
     if flown not in FLOWN:
         raise ValueError(f"flown: {flown!r} is not one of {', '.join(FLOWN)}")
-    endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+    private = PrivateEndpoint()  # where `cfstack fly` puts its emulator child: the floor is the same layout
+    endpoint = private.endpoint
     config = make_config(radio, 1, seed, lookahead=lookahead, profile=profile, duration_s=seconds,
                          zenoh_options={"listen": [endpoint]}, firmware=firmware)
     emulator = Emulator(config)
-    with emulator:
+    with emulator, contextlib.closing(private):
         child = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--responder", endpoint,
                                   repr(period_s), repr(seconds), FIRMWARE_VEHICLES[firmware], flown,
                                   "extpose" if firmware == "crazyflie" else "no-extpose"],

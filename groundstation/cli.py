@@ -53,7 +53,12 @@ from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports import zenoh_process
 from link.transports.base import free_loopback_port
 from link.transports.table import check_radio_link, far_end
-from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
+from link.transports.zenoh_session import (
+    DEFAULT_ENDPOINT,
+    PrivateEndpoint,
+    add_zenoh_arguments,
+    zenoh_options_from_args,
+)
 from model.errors import OneLineParser, UserError
 from model.options import float_in, non_negative_float, positive_float, seed, whole_number
 from model.vehicle import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_model, load_vehicle
@@ -430,10 +435,31 @@ class FlightFailed(UserError):
 
 
 class EmulatorChild:
-    """`cfstack emulator` as a child process on a private loopback zenoh endpoint."""
+    """`cfstack emulator` as a child process on a private zenoh endpoint (a Unix socket where the system has them)."""
 
     def __init__(self, args, world_path: str | None, start: np.ndarray | None, airborne: bool, clock: str):
-        self.endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+        # CRTP only for this ground station's own --link crtp, on a private port (no cflib clients otherwise)
+        if args.link == "crtp" and args.uri:
+            raise UserError("argument --uri: fly and step fly the emulator they start (its URI is theirs); fly a "
+                            "vehicle at a URI with `cfstack groundstation --link crtp --uri URI`")
+        # realtime: on UDP, as a cflib user would; lockstep: on the vehicle's zenoh keys (always served)
+        self.crtp_port = free_loopback_port(socket.SOCK_DGRAM) if args.link == "crtp" and clock == "realtime" else None
+        self._private = PrivateEndpoint()
+        self.endpoint = self._private.endpoint
+        try:
+            cmd = self._command(args, world_path, start, airborne, clock)
+            # stderr to a file, not a pipe: a pipe nobody reads during the flight could fill and stall the child
+            self.stderr = tempfile.TemporaryFile(mode="w+")
+            self.started_s = time.monotonic()
+            self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                         stderr=self.stderr, text=True, env=os.environ.copy(),
+                                         preexec_fn=die_with_parent)
+        except BaseException:
+            self._private.close()
+            raise
+
+    def _command(self, args, world_path: str | None, start: np.ndarray | None, airborne: bool,
+                 clock: str) -> list[str]:
         cmd = [sys.executable, "-m", "cfstack", "emulator", "--listen", self.endpoint, "--clock", clock,
                "--seed", str(args.seed), "--id", args.prefix,
                "--vehicle-model", args.vehicle_model, "--firmware", args.firmware,
@@ -448,20 +474,8 @@ class EmulatorChild:
             cmd += ["--airborne"]
         if args.radio_link is not None:  # the vehicle's end of the ground station's radio link
             cmd += ["--radio-link", far_end(args.radio_link)]
-        # CRTP only for this ground station's own --link crtp, on a private port (no cflib clients otherwise)
-        if args.link == "crtp" and args.uri:
-            raise UserError("argument --uri: fly and step fly the emulator they start (its URI is theirs); fly a "
-                            "vehicle at a URI with `cfstack groundstation --link crtp --uri URI`")
-        # realtime: on UDP, as a cflib user would; lockstep: on the vehicle's zenoh keys (always served)
-        self.crtp_port = free_loopback_port(socket.SOCK_DGRAM) if args.link == "crtp" and clock == "realtime" else None
         cmd += ["--crtp-port", "off" if self.crtp_port is None else str(self.crtp_port)]
-        cmd += getattr(args, "emulator_extra", [])
-        # stderr to a file, not a pipe: a pipe nobody reads during the flight could fill and stall the child
-        self.stderr = tempfile.TemporaryFile(mode="w+")
-        self.started_s = time.monotonic()
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=self.stderr, text=True, env=os.environ.copy(),
-                                     preexec_fn=die_with_parent)
+        return cmd + getattr(args, "emulator_extra", [])
 
     def _stderr_lines(self) -> list[str]:
         self.stderr.seek(0)
@@ -489,6 +503,7 @@ class EmulatorChild:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
+        self._private.close()
         lines = self._stderr_lines()
         self.stderr.close()
         return lines

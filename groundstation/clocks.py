@@ -16,6 +16,7 @@ from collections import deque
 import numpy as np
 
 from link.clock import NS_PER_S, ClockAck, unpack_tick
+from link.transports.zenoh_process import let_woken_reader_run
 from model.errors import UserError
 
 log = logging.getLogger("cfstack.groundstation")
@@ -226,6 +227,7 @@ class LockstepClock:
         wake_ns = max(round(next_wakeup_s * NS_PER_S), round(self.t_s * NS_PER_S) + 1)
         self.transport.send(ClockAck(self.tick, self.link.uplink_sent, wake_ns, period_ns=self.period_ns,
                                      crtp=self.link.speaks_crtp).pack())
+        let_woken_reader_run()  # the emulator's thread that reads the ack, queued on this CPU (zenoh_process)
         self.ack_after_tick_s.append(time.perf_counter() - self._tick_taken_s)
 
     def critical_path_summary(self) -> dict:

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from link.clock import NS_PER_S, unpack_ack
+from link.transports.zenoh_process import let_woken_reader_run
 from simulator.profiling import time_parts
 from simulator.radio import TIME_EPS_S
 
@@ -345,4 +346,5 @@ class LockstepClock:
         for node in emu.nodes:
             if node.vehicle_id in lock.participants:
                 node.clock.send(node.outbox.tick_message(self.tick, time_ns).pack())
+        let_woken_reader_run()  # the ground stations' threads that read the record, queued on this CPU (zenoh_process)
 

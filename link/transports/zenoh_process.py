@@ -97,3 +97,20 @@ def to_background(tid: int) -> None:
     except OSError as err:
         log.warning("could not put zenoh's threads in the background (%s): they run as the process does; "
                     "%s=normal skips the attempt", err.strerror or err, THREADS_ENV)
+
+
+def let_woken_reader_run() -> None:
+    """Give this thread's CPU away once, right after a put that the other lockstep process is blocked on (the
+    ground station's ack, the emulator's tick record). Why: Linux wakes the thread reading a Unix socket (the
+    private endpoint of `cfstack fly`, link.transports.zenoh_session.PrivateEndpoint) with a hint that the
+    writer is about to sleep, and so queues it on the writer's CPU. Our writer does not sleep: it goes on with
+    its tick (the ground station's log row and truth after its ack, the emulator's next physics steps after
+    its record), and a zenoh thread in the background never preempts it, so the sample waited behind that work
+    while the other CPU idled: benchmarks/lockstep_hops.py measured the ack's hop at 240-300 us (medians, an
+    attitude circle) against 44-64 us with this yield (README "Lockstep speed"). Where nothing else is ready to
+    run on this CPU, sched_yield returns at once; where the system has none, this does nothing."""
+    if _HAS_SCHED_YIELD:
+        os.sched_yield()
+
+
+_HAS_SCHED_YIELD = hasattr(os, "sched_yield")

@@ -24,9 +24,13 @@ from __future__ import annotations
 import argparse
 import atexit
 import json
+import os
 import re
+import shutil
 import signal
+import socket
 import sys
+import tempfile
 import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -36,6 +40,7 @@ from pathlib import Path
 import zenoh
 
 from link.transports import zenoh_process
+from link.transports.base import free_loopback_port
 from model.errors import UserError
 
 DEFAULT_MODE = "peer"
@@ -56,6 +61,37 @@ LOW_LATENCY_CONFIG = {"transport/unicast/lowlatency": True, "transport/unicast/q
 # The longest sample a low-latency session's transports send: below the 48000 B measured to arrive whole on
 # loopback TCP (module docstring), with room for other links' smaller batches; ours are at most 8192 B.
 LOW_LATENCY_MAX_SAMPLE_BYTES = 32768
+
+
+# A private endpoint's Unix socket path must fit the kernel's sun_path (108 bytes on Linux, 104 on macOS, NUL included)
+UNIX_SOCKET_PATH_MAX_BYTES = 103
+UNIX_SOCKET_NAME = "zenoh.sock"
+
+
+class PrivateEndpoint:
+    """An endpoint on this machine for two processes of ours that nobody else joins (`cfstack fly`'s emulator
+    child and its ground station, a benchmark's pair): zenoh's Unix socket (`unixsock-stream/PATH`) in a fresh
+    folder of its own where the system has Unix sockets and the path fits, else a free loopback TCP port.
+    Why a Unix socket: a sample over it skips TCP's loopback path; a 60 B ping-pong between two lockstep
+    processes (README "Lockstep speed") measured shorter round trips and cheaper puts. `close()` removes the
+    folder (the listener is gone by then)."""
+
+    def __init__(self) -> None:
+        self.folder: str | None = None
+        if hasattr(socket, "AF_UNIX") and sys.platform != "win32":
+            folder = tempfile.mkdtemp(prefix="cfstack-")
+            path = os.path.join(folder, UNIX_SOCKET_NAME)
+            if len(os.fsencode(path)) <= UNIX_SOCKET_PATH_MAX_BYTES:
+                self.folder = folder
+                self.endpoint = f"unixsock-stream/{path}"
+                return
+            os.rmdir(folder)
+        self.endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+
+    def close(self) -> None:
+        if self.folder is not None:
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder = None
 
 
 def check_endpoint(endpoint: str) -> str:

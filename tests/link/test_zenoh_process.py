@@ -20,7 +20,7 @@ import pytest
 
 from link.transports import open_transport, zenoh_process
 from link.transports.zenoh_process import BACKGROUND_NICE, THREADS_ENV, TRANSPORT_ENV, to_background
-from link.transports.zenoh_session import LOW_LATENCY_MAX_SAMPLE_BYTES, ZenohSettings
+from link.transports.zenoh_session import LOW_LATENCY_MAX_SAMPLE_BYTES, PrivateEndpoint, ZenohSettings
 from model.errors import UserError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -217,9 +217,9 @@ ECHO = r"""
 import sys
 from link.transports import open_transport
 from link.transports.zenoh_process import use_lockstep_settings
-port, lockstep = int(sys.argv[1]), sys.argv[2] == "lockstep"
+endpoint, lockstep = sys.argv[1], sys.argv[2] == "lockstep"
 use_lockstep_settings(lockstep)
-echo = open_transport("zenoh", tx="test/back", rx="test/out", listen=[f"tcp/127.0.0.1:{port}"])
+echo = open_transport("zenoh", tx="test/back", rx="test/out", listen=[endpoint])
 print("ready", flush=True)
 while True:
     for frame in echo.receive(1.0):
@@ -233,9 +233,9 @@ CALLER = r"""
 import json, sys
 from link.transports import open_transport
 from link.transports.zenoh_process import use_lockstep_settings
-port, lockstep, sizes = int(sys.argv[1]), sys.argv[2] == "lockstep", json.loads(sys.argv[3])
+endpoint, lockstep, sizes = sys.argv[1], sys.argv[2] == "lockstep", json.loads(sys.argv[3])
 use_lockstep_settings(lockstep)
-caller = open_transport("zenoh", tx="test/out", rx="test/back", connect=[f"tcp/127.0.0.1:{port}"])
+caller = open_transport("zenoh", tx="test/out", rx="test/back", connect=[endpoint])
 caller.wait_for_subscribers(20.0)
 back = []
 for size in sizes:
@@ -247,15 +247,16 @@ print(json.dumps(back))
 """
 
 
-def _echo_sizes(free_tcp_port, echo_lockstep: bool, caller_lockstep: bool, sizes: list[int]) -> list[int]:
-    """Frames of these sizes sent to an echo in another process and back; the sizes that came back whole."""
-    port, env = str(free_tcp_port()), dict(os.environ, PYTHONPATH=str(REPO))
+def _echo_sizes(endpoint: str, echo_lockstep: bool, caller_lockstep: bool, sizes: list[int]) -> list[int]:
+    """Frames of these sizes sent to an echo in another process (listening on endpoint) and back; the sizes
+    that came back whole."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
     clock = {True: "lockstep", False: "realtime"}
-    echo = subprocess.Popen([sys.executable, "-c", ECHO, port, clock[echo_lockstep]],
+    echo = subprocess.Popen([sys.executable, "-c", ECHO, endpoint, clock[echo_lockstep]],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         assert echo.stdout.readline().strip() == "ready"
-        caller = subprocess.run([sys.executable, "-c", CALLER, port, clock[caller_lockstep], json.dumps(sizes)],
+        caller = subprocess.run([sys.executable, "-c", CALLER, endpoint, clock[caller_lockstep], json.dumps(sizes)],
                                 capture_output=True, text=True, timeout=120, env=env)
         assert caller.returncode == 0, caller.stderr
         return json.loads(caller.stdout.strip().splitlines()[-1])
@@ -268,7 +269,19 @@ def _echo_sizes(free_tcp_port, echo_lockstep: bool, caller_lockstep: bool, sizes
 def test_frames_cross_between_processes_whichever_end_offers_low_latency(free_tcp_port, echo_lockstep,
                                                                         caller_lockstep):
     sizes = [60, 8192, LOW_LATENCY_MAX_SAMPLE_BYTES]  # a command, a packed tick, the longest sample allowed
-    assert _echo_sizes(free_tcp_port, echo_lockstep, caller_lockstep, sizes) == sizes
+    assert _echo_sizes(f"tcp/127.0.0.1:{free_tcp_port()}", echo_lockstep, caller_lockstep, sizes) == sizes
+
+
+@pytest.mark.parametrize("lockstep", [True, False])
+def test_frames_cross_between_processes_on_a_private_endpoint(lockstep):
+    """`cfstack fly`'s endpoint between its ground station and emulator child (a Unix socket here)."""
+    private = PrivateEndpoint()
+    try:
+        assert private.endpoint.startswith("unixsock-stream/")  # Linux has them (this module's skip)
+        sizes = [60, 8192, LOW_LATENCY_MAX_SAMPLE_BYTES]
+        assert _echo_sizes(private.endpoint, lockstep, lockstep, sizes) == sizes
+    finally:
+        private.close()
 
 
 def test_a_low_latency_session_refuses_a_sample_it_would_lose_in_one_line(monkeypatch, free_tcp_port):
