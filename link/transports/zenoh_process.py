@@ -6,7 +6,8 @@ ground station or emulator asks for both, a realtime one for neither) and the en
 CFSTACK_ZENOH_THREADS (`background` | `normal`) and CFSTACK_ZENOH_TRANSPORT (`lowlatency` | `universal`),
 which override it.
 Gives out: `in_background()` and `offers_low_latency()`, what link.transports.zenoh_session's open goes by,
-`to_background(tid)`, and `check_environment()` for the command lines.
+`to_background(tid)`, `check_environment()` for the command lines, and `let_woken_reader_run()`, which both
+lockstep clocks call after the put the other process waits on (why, there).
 
 Threads. In the background (Linux) means SCHED_BATCH, so a zenoh thread that wakes for a sample or a put never
 preempts the thread running on its core, and niceness BACKGROUND_NICE, so it gives way to our Python threads
@@ -106,8 +107,8 @@ def let_woken_reader_run() -> None:
     writer is about to sleep, and so queues it on the writer's CPU. Our writer does not sleep: it goes on with
     its tick (the ground station's log row and truth after its ack, the emulator's next physics steps after
     its record), and a zenoh thread in the background never preempts it, so the sample waited behind that work
-    while the other CPU idled: benchmarks/lockstep_hops.py measured the ack's hop at 240-300 us (medians, an
-    attitude circle) against 44-64 us with this yield (README "Lockstep speed"). Where nothing else is ready to
+    while the other CPU idled: benchmarks/lockstep_hops.py measured the ack's hop at 242-308 us (medians, five of
+    six attitude circles) against 44-64 us with this yield (README "Lockstep speed"). Where nothing else is ready to
     run on this CPU, sched_yield returns at once; where the system has none, this does nothing."""
     if _HAS_SCHED_YIELD:
         os.sched_yield()

@@ -4,7 +4,8 @@ Takes in: session options (`mode`, `connect`, `listen`, `scouting`, `config_file
 the flags `add_zenoh_arguments` adds to a command (`--mode`, `--connect`, `--listen`, `--config`,
 `--scouting`).
 Gives out: an opened zenoh.Session shared (reference-counted) by every user asking for the same
-settings, closed when the last user releases it (or at interpreter exit); ZenohSettings; a
+settings, closed when the last user releases it (or at interpreter exit); ZenohSettings; PrivateEndpoint (where
+`cfstack fly` meets its emulator child); a
 `python -m link.transports.zenoh_session --mode router --listen tcp/127.0.0.1:7447` router for tests and labs.
 
 Defaults (our choice, not zenoh's): peer mode, multicast scouting OFF, so a process only talks to the
