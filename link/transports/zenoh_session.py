@@ -64,6 +64,7 @@ LOW_LATENCY_CONFIG = {"transport/unicast/lowlatency": True, "transport/unicast/q
 LOW_LATENCY_MAX_SAMPLE_BYTES = 32768
 
 
+HAS_UNIX_SOCKETS = hasattr(socket, "AF_UNIX") and sys.platform != "win32"  # zenoh's unixsock-stream is Unix-only
 # A private endpoint's Unix socket path must fit the kernel's sun_path (108 bytes on Linux, 104 on macOS, NUL included)
 UNIX_SOCKET_PATH_MAX_BYTES = 103
 UNIX_SOCKET_NAME = "zenoh.sock"
@@ -79,7 +80,7 @@ class PrivateEndpoint:
 
     def __init__(self) -> None:
         self.folder: str | None = None
-        if hasattr(socket, "AF_UNIX") and sys.platform != "win32":
+        if HAS_UNIX_SOCKETS:
             folder = tempfile.mkdtemp(prefix="cfstack-")
             path = os.path.join(folder, UNIX_SOCKET_NAME)
             if len(os.fsencode(path)) <= UNIX_SOCKET_PATH_MAX_BYTES:

@@ -5,7 +5,6 @@ before its child starts leaves none."""
 from __future__ import annotations
 
 import os
-import socket
 import stat
 import subprocess
 import sys
@@ -16,10 +15,9 @@ from pathlib import Path
 import pytest
 
 from groundstation import cli
-from link.transports.zenoh_session import UNIX_SOCKET_NAME
+from link.transports.zenoh_session import HAS_UNIX_SOCKETS, UNIX_SOCKET_NAME
 
-unix_only = pytest.mark.skipif(not hasattr(socket, "AF_UNIX") or sys.platform == "win32",
-                               reason="this system has no Unix sockets")
+unix_only = pytest.mark.skipif(not HAS_UNIX_SOCKETS, reason="this system has no Unix sockets")
 
 
 def _sockets(folder: Path) -> list[Path]:

@@ -5,18 +5,20 @@ tests/link/test_zenoh_process.py's; that `fly` uses it, tests/groundstation/test
 
 from __future__ import annotations
 
-import socket
 import stat
-import sys
 import tempfile
 from pathlib import Path
 
 import pytest
 
 from link.transports import zenoh_session
-from link.transports.zenoh_session import UNIX_SOCKET_NAME, UNIX_SOCKET_PATH_MAX_BYTES, PrivateEndpoint
+from link.transports.zenoh_session import (
+    HAS_UNIX_SOCKETS,
+    UNIX_SOCKET_NAME,
+    UNIX_SOCKET_PATH_MAX_BYTES,
+    PrivateEndpoint,
+)
 
-HAS_UNIX_SOCKETS = hasattr(socket, "AF_UNIX") and sys.platform != "win32"
 unix_only = pytest.mark.skipif(not HAS_UNIX_SOCKETS, reason="this system has no Unix sockets")
 
 
@@ -52,6 +54,6 @@ def test_a_path_too_long_for_a_unix_socket_falls_back_to_tcp_and_leaves_nothing(
 
 
 def test_without_unix_sockets_it_is_a_loopback_tcp_port(monkeypatch):
-    monkeypatch.setattr(zenoh_session.sys, "platform", "win32")
+    monkeypatch.setattr(zenoh_session, "HAS_UNIX_SOCKETS", False)
     private = PrivateEndpoint()
     assert private.folder is None and private.endpoint.startswith("tcp/127.0.0.1:")
