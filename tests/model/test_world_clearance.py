@@ -1,5 +1,6 @@
 """model.world: obstacle clearance (blocks, walls, ceiling; pads while on the ground) and nudging a point
-inside the bounds, checked against distances worked out by hand for boxes."""
+inside the bounds, and the support height under a point (the floor or a pad), checked against distances and
+heights worked out by hand for boxes."""
 
 import math
 
@@ -56,3 +57,19 @@ def test_nudged_inside_moves_only_the_coordinates_within_the_radius():
     assert np.allclose(w.nudged_inside([10.0, 8.0, 0.0], 0.1), [9.9, 7.9, 0.1])
     inside = np.array([5.0, 5.0, 2.0])
     assert np.array_equal(w.nudged_inside(inside, 0.1), inside)
+
+
+def test_support_height_is_the_highest_pad_top_below_the_point_or_the_floor():
+    # two stacked-footprint pads (tops 0.5 and 1.0 m) overlapping on x in [1, 2], and one far away
+    world = World(bounds=np.array([-5.0, 5.0, -5.0, 5.0, -0.25, 4.0]),
+                  blocks=np.array([[0.0, 2.0, 0.0, 1.0, 0.0, 0.5], [1.0, 3.0, 0.0, 1.0, 0.0, 1.0],
+                                   [-4.0, -3.0, -4.0, -3.0, 0.0, 2.0]]))
+    assert world.support_height((0.5, 0.5, 2.0)) == 0.5  # over the low pad only
+    assert world.support_height((1.5, 0.5, 2.0)) == 1.0  # over both: the higher top
+    assert world.support_height((1.5, 0.5, 0.7)) == 0.5  # below the higher top: it is no support
+    assert world.support_height((1.5, 0.5, 1.0 - 0.5e-9)) == 1.0  # on the top, within the 1e-9 m allowance
+    assert world.support_height((2.0, 1.0, 3.0)) == 1.0  # the footprint's edges are closed
+    assert world.support_height((3.0 + 1e-12, 0.5, 3.0)) == -0.25  # just outside: the floor (bounds zmin)
+    assert world.support_height(np.array([-3.5, -3.5, 2.5])) == 2.0  # a numpy point as well as a tuple
+    assert world.support_height((math.nan, 0.5, 2.0)) == -0.25  # an unknown position holds on no pad
+    assert World.empty().support_height((0.0, 0.0, 1.0)) == 0.0
