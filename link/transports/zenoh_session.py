@@ -68,6 +68,9 @@ HAS_UNIX_SOCKETS = hasattr(socket, "AF_UNIX") and sys.platform != "win32"  # zen
 # A private endpoint's Unix socket path must fit the kernel's sun_path (108 bytes on Linux, 104 on macOS, NUL included)
 UNIX_SOCKET_PATH_MAX_BYTES = 103
 UNIX_SOCKET_NAME = "zenoh.sock"
+PRIVATE_FOLDER_PREFIX = "cfstack-"  # then the creating process's id, "-", and mkdtemp's random part
+_ENDPOINT_FILES = {UNIX_SOCKET_NAME, UNIX_SOCKET_NAME + ".lock"}  # what zenoh's listener puts in the folder
+_PRIVATE_FOLDER_NAME = re.compile(re.escape(PRIVATE_FOLDER_PREFIX) + r"(\d+)-[^/]+")
 
 
 class PrivateEndpoint:
@@ -76,12 +79,14 @@ class PrivateEndpoint:
     folder of its own where the system has Unix sockets and the path fits, else a free loopback TCP port.
     Why a Unix socket: a sample over it skips TCP's loopback path; a 60 B ping-pong between two lockstep
     processes (README "Lockstep speed") measured shorter round trips and cheaper puts. `close()` removes the
-    folder (the listener is gone by then)."""
+    folder (the listener is gone by then). The folder's name carries the creating process's id, so a process
+    that could not close it (killed with SIGKILL) leaves it for the next one to remove (remove_stale_folders)."""
 
     def __init__(self) -> None:
         self.folder: str | None = None
         if HAS_UNIX_SOCKETS:
-            folder = tempfile.mkdtemp(prefix="cfstack-")
+            remove_stale_folders(tempfile.gettempdir())
+            folder = tempfile.mkdtemp(prefix=f"{PRIVATE_FOLDER_PREFIX}{os.getpid()}-")
             path = os.path.join(folder, UNIX_SOCKET_NAME)
             if len(os.fsencode(path)) <= UNIX_SOCKET_PATH_MAX_BYTES:
                 self.folder = folder
@@ -94,6 +99,40 @@ class PrivateEndpoint:
         if self.folder is not None:
             shutil.rmtree(self.folder, ignore_errors=True)
             self.folder = None
+
+
+def remove_stale_folders(parent: str) -> list[str]:
+    """Remove the private endpoints' folders in `parent` that a process no longer running left behind: ours (same
+    owner), named PRIVATE_FOLDER_PREFIX + a process id that no process has now, holding nothing but zenoh's socket
+    and its lock file (a listener killed too leaves both; one that closed, neither).
+    Anything else is left alone: another user's, a live process's (its flight may be on), a folder with other
+    files in it. Gives the folders removed."""
+    removed = []
+    try:
+        entries = list(os.scandir(parent))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _PRIVATE_FOLDER_NAME.fullmatch(entry.name)
+        try:
+            if (match is None or not entry.is_dir(follow_symlinks=False) or entry.stat().st_uid != os.getuid()
+                    or _process_exists(int(match.group(1))) or set(os.listdir(entry.path)) - _ENDPOINT_FILES):
+                continue
+            shutil.rmtree(entry.path)
+        except OSError:  # gone meanwhile (another flight removed it first), or not ours to remove
+            continue
+        removed.append(entry.path)
+    return removed
+
+
+def _process_exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # signal 0: no signal, only the check
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it exists, under another user
+        return True
+    return True
 
 
 def check_endpoint(endpoint: str) -> str:

@@ -1,11 +1,15 @@
 """The private endpoint `cfstack fly` puts its emulator child on (link.transports.zenoh_session.PrivateEndpoint):
 a Unix socket in a fresh folder of its own where the system has them and the path fits, else a free loopback TCP
-port, and `close()` removes the folder. (That frames cross it whole, in lockstep and realtime, is
+port, and `close()` removes the folder; a folder a killed process left is removed by the next endpoint, and only
+such a folder. (That frames cross it whole, in lockstep and realtime, is
 tests/link/test_zenoh_process.py's; that `fly` uses it, tests/groundstation/test_emulator_child.py's.)"""
 
 from __future__ import annotations
 
+import os
 import stat
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -17,6 +21,7 @@ from link.transports.zenoh_session import (
     UNIX_SOCKET_NAME,
     UNIX_SOCKET_PATH_MAX_BYTES,
     PrivateEndpoint,
+    remove_stale_folders,
 )
 
 unix_only = pytest.mark.skipif(not HAS_UNIX_SOCKETS, reason="this system has no Unix sockets")
@@ -57,3 +62,50 @@ def test_without_unix_sockets_it_is_a_loopback_tcp_port(monkeypatch):
     monkeypatch.setattr(zenoh_session, "HAS_UNIX_SOCKETS", False)
     private = PrivateEndpoint()
     assert private.folder is None and private.endpoint.startswith("tcp/127.0.0.1:")
+
+
+def _dead_pid() -> int:
+    """The id of a process that has ended (and been reaped): no process has it now, short of reuse."""
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+@unix_only
+def test_a_folder_left_by_a_killed_process_is_removed_by_the_next_endpoint(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    dead = _dead_pid()
+    left = tmp_path / f"cfstack-{dead}-abc123"  # as a fly and its child killed with SIGKILL leave it
+    left.mkdir()
+    (left / UNIX_SOCKET_NAME).touch()
+    (left / f"{UNIX_SOCKET_NAME}.lock").touch()  # zenoh's listener's lock file
+    empty = tmp_path / f"cfstack-{dead}-def456"  # killed before its child listened
+    empty.mkdir()
+    private = PrivateEndpoint()
+    try:
+        assert not left.exists() and not empty.exists()
+        assert sorted(tmp_path.iterdir()) == [Path(private.folder)]
+        assert Path(private.folder).name.startswith(f"cfstack-{os.getpid()}-")
+    finally:
+        private.close()
+
+
+@unix_only
+def test_only_stale_endpoint_folders_are_removed(tmp_path):
+    dead = _dead_pid()
+    live = tmp_path / f"cfstack-{os.getpid()}-live01"  # a flight of a running process: in use
+    live.mkdir()
+    (live / UNIX_SOCKET_NAME).touch()
+    other_files = tmp_path / f"cfstack-{dead}-other1"  # not only a socket: not ours to judge
+    other_files.mkdir()
+    (other_files / "notes.txt").write_text("keep")
+    not_ours = tmp_path / f"cfstack-{dead}"  # not the endpoint's name pattern (no random part)
+    not_ours.mkdir()
+    plain_file = tmp_path / f"cfstack-{dead}-file01"  # a file, not a folder
+    plain_file.write_text("keep")
+    stale = tmp_path / f"cfstack-{dead}-stale1"
+    stale.mkdir()
+    assert remove_stale_folders(str(tmp_path)) == [str(stale)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        p.name for p in (live, other_files, not_ours, plain_file))
+    assert remove_stale_folders(str(tmp_path / "missing")) == []  # no such parent: nothing, no error
