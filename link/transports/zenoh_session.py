@@ -103,8 +103,9 @@ class PrivateEndpoint:
 
 def remove_stale_folders(parent: str) -> list[str]:
     """Remove the private endpoints' folders in `parent` that a process no longer running left behind: ours (same
-    owner), named PRIVATE_FOLDER_PREFIX + a process id that no process has now, holding nothing but zenoh's socket
-    and its lock file (a listener killed too leaves both; one that closed, neither).
+    owner), named PRIVATE_FOLDER_PREFIX + a process id that no running process has (an unreaped zombie's counts as
+    gone), holding nothing but zenoh's socket and its lock file (a listener killed too leaves both; one that closed,
+    neither).
     Anything else is left alone: another user's, a live process's (its flight may be on), a folder with other
     files in it. Gives the folders removed."""
     removed = []
@@ -126,13 +127,20 @@ def remove_stale_folders(parent: str) -> list[str]:
 
 
 def _process_exists(pid: int) -> bool:
+    """Whether a process with this id runs: one that ended but is not reaped yet (a zombie, as a `fly` killed
+    with SIGKILL is until its parent waits for it) does not, where /proc says so (Linux)."""
     try:
         os.kill(pid, 0)  # signal 0: no signal, only the check
     except ProcessLookupError:
         return False
     except PermissionError:  # it exists, under another user
         return True
-    return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as stat:
+            state = stat.read().rpartition(b")")[2].split()[0]  # the field after "(name)", which may hold spaces
+    except (OSError, IndexError):  # no /proc (macOS), or it ended meanwhile: os.kill's answer stands
+        return True
+    return state != b"Z"
 
 
 def check_endpoint(endpoint: str) -> str:

@@ -11,6 +11,7 @@ import stat
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -109,3 +110,21 @@ def test_only_stale_endpoint_folders_are_removed(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         p.name for p in (live, other_files, not_ours, plain_file))
     assert remove_stale_folders(str(tmp_path / "missing")) == []  # no such parent: nothing, no error
+
+
+@unix_only
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="no /proc to tell a zombie by")
+def test_the_folder_of_a_process_that_ended_but_is_not_reaped_yet_is_removed(tmp_path):
+    child = subprocess.Popen([sys.executable, "-c", "pass"])  # not waited for: a zombie once it ends
+    try:
+        stat = Path(f"/proc/{child.pid}/stat")
+        deadline = time.monotonic() + 30.0
+        while stat.read_bytes().rpartition(b")")[2].split()[0] != b"Z":
+            assert time.monotonic() < deadline, "the child never ended"
+            time.sleep(0.01)
+        left = tmp_path / f"cfstack-{child.pid}-zombie"
+        left.mkdir()
+        (left / UNIX_SOCKET_NAME).touch()
+        assert remove_stale_folders(str(tmp_path)) == [str(left)]
+    finally:
+        child.wait()
