@@ -26,6 +26,8 @@ from link.transports.zenoh_session import (
 )
 
 unix_only = pytest.mark.skipif(not HAS_UNIX_SOCKETS, reason="this system has no Unix sockets")
+has_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(),
+                              reason="no /proc to read a process's state and start time from")
 
 
 @unix_only
@@ -97,9 +99,6 @@ def _own_start() -> str:
     return Path("/proc/self/stat").read_bytes().rpartition(b")")[2].split()[19].decode()
 
 
-has_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="no /proc to read a start time from")
-
-
 @unix_only
 @has_proc
 def test_the_folder_names_the_process_by_its_id_and_start_time(tmp_path, monkeypatch):
@@ -151,7 +150,7 @@ def test_only_stale_endpoint_folders_are_removed(tmp_path):
 
 
 @unix_only
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="no /proc to tell a zombie by")
+@has_proc
 def test_the_folder_of_a_process_that_ended_but_is_not_reaped_yet_is_removed(tmp_path):
     child = subprocess.Popen([sys.executable, "-c", "pass"])  # not waited for: a zombie once it ends
     try:
