@@ -68,12 +68,9 @@ HAS_UNIX_SOCKETS = hasattr(socket, "AF_UNIX") and sys.platform != "win32"  # zen
 # A private endpoint's Unix socket path must fit the kernel's sun_path (108 bytes on Linux, 104 on macOS, NUL included)
 UNIX_SOCKET_PATH_MAX_BYTES = 103
 UNIX_SOCKET_NAME = "zenoh.sock"
-# then the creating process's id, "-", its start time where /proc gives it (_process_start) and "-", and mkdtemp's
-# random part (which has no "-": a name from before the start time was added still reads as id + random part)
-PRIVATE_FOLDER_PREFIX = "cfstack-"
+PRIVATE_FOLDER_PREFIX = "cfstack-"  # then the creating process's id, "-", and mkdtemp's random part
 _ENDPOINT_FILES = {UNIX_SOCKET_NAME, UNIX_SOCKET_NAME + ".lock"}  # what zenoh's listener puts in the folder
-_PRIVATE_FOLDER_NAME = re.compile(re.escape(PRIVATE_FOLDER_PREFIX) + r"(\d+)-(?:(\d+)-)?[^/]+")
-_STAT_STATE, _STAT_START = 0, 19  # /proc/PID/stat fields 3 and 22 (proc(5)), counted after "(name)"
+_PRIVATE_FOLDER_NAME = re.compile(re.escape(PRIVATE_FOLDER_PREFIX) + r"(\d+)-[^/]+")
 
 
 class PrivateEndpoint:
@@ -82,17 +79,14 @@ class PrivateEndpoint:
     folder of its own where the system has Unix sockets and the path fits, else a free loopback TCP port.
     Why a Unix socket: a sample over it skips TCP's loopback path; a 60 B ping-pong between two lockstep
     processes (README "Lockstep speed") measured shorter round trips and cheaper puts. `close()` removes the
-    folder (the listener is gone by then). The folder's name carries the creating process's id and start time, so
-    a process that could not close it (killed with SIGKILL) leaves it for the next one to remove
-    (remove_stale_folders), also once another process has its id."""
+    folder (the listener is gone by then). The folder's name carries the creating process's id, so a process
+    that could not close it (killed with SIGKILL) leaves it for the next one to remove (remove_stale_folders)."""
 
     def __init__(self) -> None:
         self.folder: str | None = None
         if HAS_UNIX_SOCKETS:
             remove_stale_folders(tempfile.gettempdir())
-            pid = os.getpid()
-            start = _process_start(pid)
-            folder = tempfile.mkdtemp(prefix=f"{PRIVATE_FOLDER_PREFIX}{pid}-{'' if start is None else start + '-'}")
+            folder = tempfile.mkdtemp(prefix=f"{PRIVATE_FOLDER_PREFIX}{os.getpid()}-")
             path = os.path.join(folder, UNIX_SOCKET_NAME)
             if len(os.fsencode(path)) <= UNIX_SOCKET_PATH_MAX_BYTES:
                 self.folder = folder
@@ -109,9 +103,9 @@ class PrivateEndpoint:
 
 def remove_stale_folders(parent: str) -> list[str]:
     """Remove the private endpoints' folders in `parent` that a process no longer running left behind: ours (same
-    owner), named PRIVATE_FOLDER_PREFIX + a process id (and start time) that no running process has (an unreaped
-    zombie's counts as gone, and so does a process that got the id later: its start time differs), holding nothing
-    but zenoh's socket and its lock file (a listener killed too leaves both; one that closed, neither).
+    owner), named PRIVATE_FOLDER_PREFIX + a process id that no running process has (an unreaped zombie's counts as
+    gone), holding nothing but zenoh's socket and its lock file (a listener killed too leaves both; one that closed,
+    neither).
     Anything else is left alone: another user's, a live process's (its flight may be on), a folder with other
     files in it. Gives the folders removed."""
     removed = []
@@ -123,8 +117,7 @@ def remove_stale_folders(parent: str) -> list[str]:
         match = _PRIVATE_FOLDER_NAME.fullmatch(entry.name)
         try:
             if (match is None or not entry.is_dir(follow_symlinks=False) or entry.stat().st_uid != os.getuid()
-                    or _process_exists(int(match.group(1)), match.group(2))
-                    or set(os.listdir(entry.path)) - _ENDPOINT_FILES):
+                    or _process_exists(int(match.group(1))) or set(os.listdir(entry.path)) - _ENDPOINT_FILES):
                 continue
             shutil.rmtree(entry.path)
         except OSError:  # gone meanwhile (another flight removed it first), or not ours to remove
@@ -133,37 +126,21 @@ def remove_stale_folders(parent: str) -> list[str]:
     return removed
 
 
-def _process_exists(pid: int, start: str | None = None) -> bool:
-    """Whether the process with this id (and, given, this start time: _process_start) runs. One that ended but is
-    not reaped yet (a zombie, as a `fly` killed with SIGKILL is until its parent waits for it) does not, nor
-    does a later process that got the same id, where /proc says so (Linux)."""
+def _process_exists(pid: int) -> bool:
+    """Whether a process with this id runs: one that ended but is not reaped yet (a zombie, as a `fly` killed
+    with SIGKILL is until its parent waits for it) does not, where /proc says so (Linux)."""
     try:
         os.kill(pid, 0)  # signal 0: no signal, only the check
     except ProcessLookupError:
         return False
-    except PermissionError:  # it exists, under another user (whose /proc/PID/stat is still readable)
-        pass
-    fields = _stat_fields(pid)
-    if fields is None:  # no /proc (macOS), or it ended meanwhile: os.kill's answer stands
+    except PermissionError:  # it exists, under another user
         return True
-    return fields[_STAT_STATE] != b"Z" and (start is None or fields[_STAT_START].decode() == start)
-
-
-def _process_start(pid: int) -> str | None:
-    """When the process started, in clock ticks since the system booted (/proc/PID/stat's starttime): with the
-    id it names one process, and a step of the wall clock does not change it. None without /proc."""
-    fields = _stat_fields(pid)
-    return None if fields is None else fields[_STAT_START].decode()
-
-
-def _stat_fields(pid: int) -> list[bytes] | None:
-    """/proc/PID/stat's fields after "(name)" (which may hold spaces), or None where it cannot be read."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as stat:
-            fields = stat.read().rpartition(b")")[2].split()
-    except OSError:
-        return None
-    return fields if len(fields) > _STAT_START else None
+            state = stat.read().rpartition(b")")[2].split()[0]  # the field after "(name)", which may hold spaces
+    except (OSError, IndexError):  # no /proc (macOS), or it ended meanwhile: os.kill's answer stands
+        return True
+    return state != b"Z"
 
 
 def check_endpoint(endpoint: str) -> str:
