@@ -69,7 +69,11 @@ HAS_UNIX_SOCKETS = hasattr(socket, "AF_UNIX") and sys.platform != "win32"  # zen
 UNIX_SOCKET_PATH_MAX_BYTES = 103
 UNIX_SOCKET_NAME = "zenoh.sock"
 PRIVATE_FOLDER_PREFIX = "cfstack-"  # then the creating process's id, "-", and mkdtemp's random part
+# The creating process's start time (/proc/PID/stat field 22, clock ticks since boot), in a file inside the folder
+# rather than in its name, which would lengthen the socket's path (UNIX_SOCKET_PATH_MAX_BYTES); Linux only.
+OWNER_FILE = "owner"
 _ENDPOINT_FILES = {UNIX_SOCKET_NAME, UNIX_SOCKET_NAME + ".lock"}  # what zenoh's listener puts in the folder
+_STAT_STATE, _STAT_START_TIME = 0, 19  # /proc/PID/stat fields 3 and 22, counted from the one after "(name)"
 _PRIVATE_FOLDER_NAME = re.compile(re.escape(PRIVATE_FOLDER_PREFIX) + r"(\d+)-[^/]+")
 
 
@@ -79,20 +83,22 @@ class PrivateEndpoint:
     folder of its own where the system has Unix sockets and the path fits, else a free loopback TCP port.
     Why a Unix socket: a sample over it skips TCP's loopback path; a 60 B ping-pong between two lockstep
     processes (README "Lockstep speed") measured shorter round trips and cheaper puts. `close()` removes the
-    folder (the listener is gone by then). The folder's name carries the creating process's id, so a process
-    that could not close it (killed with SIGKILL) leaves it for the next one to remove (remove_stale_folders)."""
+    folder (the listener is gone by then). The folder's name carries the creating process's id and its OWNER_FILE
+    that process's start time, so a process that could not close it (killed with SIGKILL) leaves it for the next one
+    to remove (remove_stale_folders), even once a later process has the same id."""
 
     def __init__(self) -> None:
         self.folder: str | None = None
         if HAS_UNIX_SOCKETS:
             remove_stale_folders(tempfile.gettempdir())
             folder = tempfile.mkdtemp(prefix=f"{PRIVATE_FOLDER_PREFIX}{os.getpid()}-")
+            _write_owner(folder)
             path = os.path.join(folder, UNIX_SOCKET_NAME)
             if len(os.fsencode(path)) <= UNIX_SOCKET_PATH_MAX_BYTES:
                 self.folder = folder
                 self.endpoint = f"unixsock-stream/{path}"
                 return
-            os.rmdir(folder)
+            shutil.rmtree(folder, ignore_errors=True)
         self.endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
 
     def close(self) -> None:
@@ -104,8 +110,9 @@ class PrivateEndpoint:
 def remove_stale_folders(parent: str) -> list[str]:
     """Remove the private endpoints' folders in `parent` that a process no longer running left behind: ours (same
     owner), named PRIVATE_FOLDER_PREFIX + a process id that no running process has (an unreaped zombie's counts as
-    gone), holding nothing but zenoh's socket and its lock file (a listener killed too leaves both; one that closed,
-    neither).
+    gone), or that a process started at another time than the one OWNER_FILE records has now (the id was reused),
+    holding nothing but zenoh's socket, its lock file and OWNER_FILE (a listener killed too leaves the first two;
+    one that closed, neither).
     Anything else is left alone: another user's, a live process's (its flight may be on), a folder with other
     files in it. Gives the folders removed."""
     removed = []
@@ -116,8 +123,10 @@ def remove_stale_folders(parent: str) -> list[str]:
     for entry in entries:
         match = _PRIVATE_FOLDER_NAME.fullmatch(entry.name)
         try:
-            if (match is None or not entry.is_dir(follow_symlinks=False) or entry.stat().st_uid != os.getuid()
-                    or _process_exists(int(match.group(1))) or set(os.listdir(entry.path)) - _ENDPOINT_FILES):
+            if match is None or not entry.is_dir(follow_symlinks=False) or entry.stat().st_uid != os.getuid():
+                continue
+            files = set(os.listdir(entry.path))
+            if files - _ENDPOINT_FILES - {OWNER_FILE} or _process_exists(int(match.group(1)), _owner(entry.path)):
                 continue
             shutil.rmtree(entry.path)
         except OSError:  # gone meanwhile (another flight removed it first), or not ours to remove
@@ -126,21 +135,51 @@ def remove_stale_folders(parent: str) -> list[str]:
     return removed
 
 
-def _process_exists(pid: int) -> bool:
-    """Whether a process with this id runs: one that ended but is not reaped yet (a zombie, as a `fly` killed
-    with SIGKILL is until its parent waits for it) does not, where /proc says so (Linux)."""
+def _process_stat(pid: int) -> list[bytes] | None:
+    """/proc/PID/stat's fields from the state on (the name before them may hold spaces); None without /proc (macOS),
+    or if the process ended meanwhile."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as stat:
+            return stat.read().rpartition(b")")[2].split()
+    except OSError:
+        return None
+
+
+def _write_owner(folder: str) -> None:
+    """Record this process's start time in the folder (nothing where there is no /proc to read it from)."""
+    fields = _process_stat(os.getpid())
+    if fields is not None and len(fields) > _STAT_START_TIME:
+        with open(os.path.join(folder, OWNER_FILE), "xb") as owner:
+            owner.write(fields[_STAT_START_TIME])
+
+
+def _owner(folder: str) -> bytes | None:
+    """The start time a folder's OWNER_FILE records; None if it has none (an older cfstack's, no /proc, or a
+    creator killed between making the folder and writing the file)."""
+    try:
+        with open(os.path.join(folder, OWNER_FILE), "rb") as owner:
+            started = owner.read()
+    except FileNotFoundError:
+        return None
+    return started if started.isdigit() else None
+
+
+def _process_exists(pid: int, started: bytes | None = None) -> bool:
+    """Whether a process with this id runs (and, given `started`, is the one started then): one that ended but is not
+    reaped yet (a zombie, as a `fly` killed with SIGKILL is until its parent waits for it) does not, nor a later
+    process that got the id, where /proc says so (Linux)."""
     try:
         os.kill(pid, 0)  # signal 0: no signal, only the check
     except ProcessLookupError:
         return False
     except PermissionError:  # it exists, under another user
         return True
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as stat:
-            state = stat.read().rpartition(b")")[2].split()[0]  # the field after "(name)", which may hold spaces
-    except (OSError, IndexError):  # no /proc (macOS), or it ended meanwhile: os.kill's answer stands
+    fields = _process_stat(pid)
+    if fields is None or len(fields) <= _STAT_START_TIME:  # no /proc: os.kill's answer stands
         return True
-    return state != b"Z"
+    if started is not None and fields[_STAT_START_TIME] != started:
+        return False
+    return fields[_STAT_STATE] != b"Z"
 
 
 def check_endpoint(endpoint: str) -> str:

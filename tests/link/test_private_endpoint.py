@@ -1,7 +1,7 @@
 """The private endpoint `cfstack fly` puts its emulator child on (link.transports.zenoh_session.PrivateEndpoint):
 a Unix socket in a fresh folder of its own where the system has them and the path fits, else a free loopback TCP
-port, and `close()` removes the folder; a folder a killed process left is removed by the next endpoint, and only
-such a folder. (That frames cross it whole, in lockstep and realtime, is
+port, and `close()` removes the folder; a folder a killed process left is removed by the next endpoint, also once a
+later process has its id, and only such a folder. (That frames cross it whole, in lockstep and realtime, is
 tests/link/test_zenoh_process.py's; that `fly` uses it, tests/groundstation/test_emulator_child.py's.)"""
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import pytest
 from link.transports import zenoh_session
 from link.transports.zenoh_session import (
     HAS_UNIX_SOCKETS,
+    OWNER_FILE,
     UNIX_SOCKET_NAME,
     UNIX_SOCKET_PATH_MAX_BYTES,
     PrivateEndpoint,
@@ -26,6 +27,14 @@ from link.transports.zenoh_session import (
 )
 
 unix_only = pytest.mark.skipif(not HAS_UNIX_SOCKETS, reason="this system has no Unix sockets")
+has_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="no /proc to read processes' states from")
+
+
+def _proc_stat_fields(pid: int) -> list[bytes]:
+    """/proc/PID/stat's fields, numbered as proc(5) numbers them from 1 (index 0 unused); read here, not through
+    the code under test."""
+    name_end = (raw := Path(f"/proc/{pid}/stat").read_bytes()).rindex(b")")
+    return [b"", *raw[:name_end].split(b" (", 1), *raw[name_end + 1:].split()]
 
 
 @unix_only
@@ -80,6 +89,7 @@ def test_a_folder_left_by_a_killed_process_is_removed_by_the_next_endpoint(tmp_p
     left.mkdir()
     (left / UNIX_SOCKET_NAME).touch()
     (left / f"{UNIX_SOCKET_NAME}.lock").touch()  # zenoh's listener's lock file
+    (left / OWNER_FILE).write_bytes(b"6480868")  # the killed process's start time
     empty = tmp_path / f"cfstack-{dead}-def456"  # killed before its child listened
     empty.mkdir()
     private = PrivateEndpoint()
@@ -113,13 +123,12 @@ def test_only_stale_endpoint_folders_are_removed(tmp_path):
 
 
 @unix_only
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="no /proc to tell a zombie by")
+@has_proc
 def test_the_folder_of_a_process_that_ended_but_is_not_reaped_yet_is_removed(tmp_path):
     child = subprocess.Popen([sys.executable, "-c", "pass"])  # not waited for: a zombie once it ends
     try:
-        stat = Path(f"/proc/{child.pid}/stat")
         deadline = time.monotonic() + 30.0
-        while stat.read_bytes().rpartition(b")")[2].split()[0] != b"Z":
+        while _proc_stat_fields(child.pid)[3] != b"Z":  # field 3: the state
             assert time.monotonic() < deadline, "the child never ended"
             time.sleep(0.01)
         left = tmp_path / f"cfstack-{child.pid}-zombie"
@@ -128,3 +137,40 @@ def test_the_folder_of_a_process_that_ended_but_is_not_reaped_yet_is_removed(tmp
         assert remove_stale_folders(str(tmp_path)) == [str(left)]
     finally:
         child.wait()
+
+
+@unix_only
+@has_proc
+def test_the_folder_records_its_creators_start_time_beside_the_socket(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    private = PrivateEndpoint()
+    try:
+        folder = Path(private.folder)
+        assert folder.name.startswith(f"cfstack-{os.getpid()}-")
+        # proc(5) field 22: this process's start time, in clock ticks since boot
+        assert (folder / OWNER_FILE).read_bytes() == _proc_stat_fields(os.getpid())[22]
+        assert [p.name for p in folder.iterdir()] == [OWNER_FILE]  # the socket comes when the emulator listens
+    finally:
+        private.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+@unix_only
+@has_proc
+def test_a_folder_whose_process_id_a_later_process_got_is_removed_and_its_creators_is_kept(tmp_path):
+    started = _proc_stat_fields(os.getpid())[22]
+    earlier = str(int(started) - 1).encode()  # a process started a tick earlier had this id, and was killed
+    reused = tmp_path / f"cfstack-{os.getpid()}-reused"
+    reused.mkdir()
+    (reused / UNIX_SOCKET_NAME).touch()
+    (reused / f"{UNIX_SOCKET_NAME}.lock").touch()
+    (reused / OWNER_FILE).write_bytes(earlier)
+    ours = tmp_path / f"cfstack-{os.getpid()}-ours01"  # this process's own: in use
+    ours.mkdir()
+    (ours / UNIX_SOCKET_NAME).touch()
+    (ours / OWNER_FILE).write_bytes(started)
+    unwritten = tmp_path / f"cfstack-{os.getpid()}-unwrit"  # its creator has not written the start time yet
+    unwritten.mkdir()
+    (unwritten / OWNER_FILE).touch()
+    assert remove_stale_folders(str(tmp_path)) == [str(reused)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in (ours, unwritten))
