@@ -8,7 +8,6 @@ import os
 import stat
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -25,19 +24,18 @@ def _sockets(folder: Path) -> list[Path]:
 
 
 @unix_only
-def test_fly_meets_its_emulator_on_a_unix_socket_and_removes_it(tmp_path, monkeypatch):
+def test_fly_meets_its_emulator_on_a_unix_socket_and_removes_it(short_tempdir):
     """fly's emulator child (groundstation.cli.emulator_child, which `fly` and `step` start in either clock)
     listens on a Unix socket in its own folder, and the folder goes when the child is stopped."""
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     args = cli._parsed(cli.fly_parser(), ["--trajectory", "hover"])
     with cli.emulator_child(args, None, False, {}) as child:
         deadline = time.monotonic() + 60.0
-        while not _sockets(tmp_path) and child.failure() is None and time.monotonic() < deadline:
+        while not _sockets(short_tempdir) and child.failure() is None and time.monotonic() < deadline:
             time.sleep(0.02)
-        listening = _sockets(tmp_path)
+        listening = _sockets(short_tempdir)
         assert child.failure() is None
     assert [f"unixsock-stream/{path}" for path in listening] == [child.endpoint]  # the child listened there
-    assert list(tmp_path.iterdir()) == []  # and the folder went with it
+    assert list(short_tempdir.iterdir()) == []  # and the folder went with it
 
 
 @unix_only

@@ -38,20 +38,19 @@ def _proc_stat_fields(pid: int) -> list[bytes]:
 
 
 @unix_only
-def test_it_is_a_unix_socket_in_a_folder_only_we_may_enter(tmp_path, monkeypatch):
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+def test_it_is_a_unix_socket_in_a_folder_only_we_may_enter(short_tempdir):
     first, second = PrivateEndpoint(), PrivateEndpoint()
     try:
         for private in (first, second):
             folder = Path(private.folder)
             assert private.endpoint == f"unixsock-stream/{folder / UNIX_SOCKET_NAME}"
-            assert folder.parent == tmp_path and folder.is_dir()
+            assert folder.parent == short_tempdir and folder.is_dir()
             assert stat.S_IMODE(folder.stat().st_mode) == 0o700
         assert first.endpoint != second.endpoint  # two flights at once never share one
     finally:
         first.close()
         second.close()
-    assert list(tmp_path.iterdir()) == []
+    assert list(short_tempdir.iterdir()) == []
     first.close()  # again: nothing left to do
 
 
@@ -82,20 +81,19 @@ def _dead_pid() -> int:
 
 
 @unix_only
-def test_a_folder_left_by_a_killed_process_is_removed_by_the_next_endpoint(tmp_path, monkeypatch):
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+def test_a_folder_left_by_a_killed_process_is_removed_by_the_next_endpoint(short_tempdir):
     dead = _dead_pid()
-    left = tmp_path / f"cfstack-{dead}-abc123"  # as a fly and its child killed with SIGKILL leave it
+    left = short_tempdir / f"cfstack-{dead}-abc123"  # as a fly and its child killed with SIGKILL leave it
     left.mkdir()
     (left / UNIX_SOCKET_NAME).touch()
     (left / f"{UNIX_SOCKET_NAME}.lock").touch()  # zenoh's listener's lock file
     (left / OWNER_FILE).write_bytes(b"6480868")  # the killed process's start time
-    empty = tmp_path / f"cfstack-{dead}-def456"  # killed before its child listened
+    empty = short_tempdir / f"cfstack-{dead}-def456"  # killed before its child listened
     empty.mkdir()
     private = PrivateEndpoint()
     try:
         assert not left.exists() and not empty.exists()
-        assert sorted(tmp_path.iterdir()) == [Path(private.folder)]
+        assert sorted(short_tempdir.iterdir()) == [Path(private.folder)]
         assert Path(private.folder).name.startswith(f"cfstack-{os.getpid()}-")
     finally:
         private.close()
@@ -141,8 +139,7 @@ def test_the_folder_of_a_process_that_ended_but_is_not_reaped_yet_is_removed(tmp
 
 @unix_only
 @has_proc
-def test_the_folder_records_its_creators_start_time_beside_the_socket(tmp_path, monkeypatch):
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+def test_the_folder_records_its_creators_start_time_beside_the_socket(short_tempdir):
     private = PrivateEndpoint()
     try:
         folder = Path(private.folder)
@@ -152,7 +149,7 @@ def test_the_folder_records_its_creators_start_time_beside_the_socket(tmp_path, 
         assert [p.name for p in folder.iterdir()] == [OWNER_FILE]  # the socket comes when the emulator listens
     finally:
         private.close()
-    assert list(tmp_path.iterdir()) == []
+    assert list(short_tempdir.iterdir()) == []
 
 
 @unix_only
