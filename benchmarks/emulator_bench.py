@@ -21,6 +21,9 @@ Run: python benchmarks/emulator_bench.py [--seconds 4] [--repeats 3] [--radio la
 turn; esb-duplex's 0.84 ms, rounded up to the vehicle firmware's next 2 ms cycle (when a delivered
 command first acts), hides two 1 ms steps per tick. Lookahead only pays when a core is free.)
 The responder child is this file: python benchmarks/emulator_bench.py --responder ENDPOINT PERIOD_S SECONDS
+[VEHICLE FLOWN EXTPOSE WORK_BEFORE_US WORK_AFTER_US]; the last two (default 0) stand for a ground station's own work
+per tick (benchmarks/work_budget.py): a busy wait before its commands (on the lockstep's critical path) and one
+after its ack (overlapping the emulator's next step).
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ from link.keys import GROUND_STATION_SYSTEM_ID, VehicleKeys
 from link.mavlink.codec import ActuatorLimits, Codec, FrameParser
 from link.messages import AttitudeTarget, CommandKind, ExternalPose, MocapPose, ThrustMoment, VehicleCommand
 from link.transports import open_transport
-from link.transports.zenoh_process import use_lockstep_settings
+from link.transports.zenoh_process import let_woken_reader_run, use_lockstep_settings
 from link.transports.zenoh_session import PrivateEndpoint
 from model.radio import load_radio_profile
 from model.vehicle import FIRMWARE_VEHICLES, GRAVITY_MPS2, load_mocap_room, load_vehicle
@@ -138,9 +141,9 @@ def cpu_s() -> float:
 
 
 def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed: int, profile: bool,
-              firmware: str = "ideal", flown: str = FIXED) -> dict:
+              firmware: str = "ideal", flown: str = FIXED, work_us: tuple[float, float] = (0.0, 0.0)) -> dict:
     """The emulator here (listening), the responder as a child process; wall time from tick 0. `flown`: what
-    the responder sends (FLOWN)."""
+    the responder sends (FLOWN); `work_us`: its busy waits per tick before its commands and after its ack."""
     if flown not in FLOWN:
         raise ValueError(f"flown: {flown!r} is not one of {', '.join(FLOWN)}")
     private = PrivateEndpoint()  # where `cfstack fly` puts its emulator child: the floor is the same layout
@@ -151,7 +154,7 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
     with emulator, contextlib.closing(private):
         child = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--responder", endpoint,
                                   repr(period_s), repr(seconds), FIRMWARE_VEHICLES[firmware], flown,
-                                  "extpose" if firmware == "crazyflie" else "no-extpose"],
+                                  "extpose" if firmware == "crazyflie" else "no-extpose", *map(repr, work_us)],
                                  stdout=subprocess.PIPE, text=True)
         ready = child.stdout.readline()  # its transports are matched with ours: it joins right away
         if ready.strip() != "ready":
@@ -249,14 +252,23 @@ class HeightHold:
         self.thrust_n = min(max(self.mass_kg * accel, 0.0), self.max_thrust_n)
 
 
+def busy_wait(seconds: float) -> None:
+    """Hold the CPU (and the GIL) for `seconds` of wall time, as a ground station's Python work does."""
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+
+
 def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str = "crazyflie", flown: str = FIXED,
-              extpose: str = "no-extpose") -> None:
+              extpose: str = "no-extpose", work_before_us: float = 0.0, work_after_us: float = 0.0) -> None:
     """Join vehicle 1's lockstep; per tick: wait for the announced frames (blocking on the key still
     short), send ARM (first tick) and the command `flown` says (FLOWN: a hover ThrustMoment of the emulated
     vehicle's weight, or a mode's own command on the height hold, each pose forwarded with "extpose"), ack
     with wake-up = tick + period. Its acks carry the period as a standing order (ClockAck.period_ns), as
     the ground station's do, so the emulator may publish a tick before the last one's ack when its
-    lookahead covers a whole tick."""
+    lookahead covers a whole tick. `work_before_us` / `work_after_us`: a busy wait per tick before its commands
+    and after its ack; with work after the ack it yields its CPU right after the ack, as the ground station's
+    lockstep clock does before its bookkeeping (link.transports.zenoh_process.let_woken_reader_run)."""
     opts = {"connect": [endpoint], "listen": []}
     use_lockstep_settings(True)  # as a lockstep ground station's (groundstation.session)
     keys = VehicleKeys(PREFIX, 1)
@@ -307,12 +319,17 @@ def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str 
             cpu0 = cpu_s()
             usage = resource.getrusage(resource.RUSAGE_SELF)
             switches0 = usage.ru_nvcsw + usage.ru_nivcsw
+        if work_before_us > 0:
+            busy_wait(work_before_us * 1e-6)
         for message in commands.tick(tick.time_s):
             uplink.send(codec.encode(message, 1))
         last = tick.tick
         done = tick.time_s >= seconds - 1e-9
         clock.send(ClockAck(tick.tick, uplink.stats.frames_sent, 0 if done else tick.time_ns + period_ns,
                             leaving=done, period_ns=period_ns).pack())
+        if work_after_us > 0:
+            let_woken_reader_run()
+            busy_wait(work_after_us * 1e-6)
         t3 = perf()
         if ticks > 0:
             waits["tick_wait_s"] += t1 - t0
@@ -364,7 +381,7 @@ class FlownCommands:
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--responder":
-        responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:8])
+        responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:8], *map(float, sys.argv[8:10]))
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0,
