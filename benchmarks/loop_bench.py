@@ -103,12 +103,14 @@ def fly_timed(args: list[str], log: Path, tree: Path | None) -> tuple[dict, dict
     return plain, json.loads(out.read_text())
 
 
-def _floor_run(mode: str, firmware: str, flown: str = emulator_bench.FIXED) -> dict:
+def floor_run(mode: str, firmware: str, flown: str = emulator_bench.FIXED, work_us: tuple[float, float] = (0.0, 0.0),
+              seconds: float = FLOOR_SECONDS) -> dict:
     """One run of the layout's floor: the emulator against a ground station that does no work
-    (emulator_bench's responder), at the mode's rate, FLOOR_SECONDS simulated; `flown`: what the responder
-    sends (emulator_bench.FLOWN: FIXED as the issue was filed, or the mode's own command, airborne)."""
-    return emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, FLOOR_SECONDS, 1.0 / DEFAULT_RATE_HZ[mode], True, 0,
-                                    profile=False, firmware=firmware, flown=flown)
+    (emulator_bench's responder), at the mode's rate, `seconds` simulated; `flown`: what the responder
+    sends (emulator_bench.FLOWN: FIXED as the issue was filed, or the mode's own command, airborne); `work_us`:
+    the responder's busy waits per tick before its commands and after its ack (work_budget.py; none here)."""
+    return emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, seconds, 1.0 / DEFAULT_RATE_HZ[mode], True, 0,
+                                    profile=False, firmware=firmware, flown=flown, work_us=work_us)
 
 
 # The baseline revision's own floor: its emulator and its responder (its emulator_bench, run from the extracted
@@ -143,7 +145,7 @@ def floor_runs(tree: Path) -> dict[tuple[str, str], list[dict]]:
     for i in range(FLOOR_RUNS):
         for mode, firmware in keys:
             runs[mode, firmware].append(_baseline_floor_run(mode, tree) if firmware == BASELINE
-                                        else _floor_run(mode, firmware))
+                                        else floor_run(mode, firmware))
         print(f"   floor runs {i + 1}/{FLOOR_RUNS}", file=sys.stderr, flush=True)  # progress
     return runs
 
@@ -267,7 +269,7 @@ def lockstep_table(tmp: Path, quick: bool, rev: str, rounds: int) -> None:
 
 def _flight_floor_runs(mode: str) -> dict[str, list[dict]]:
     """One floor run of the crazyflie firmware each way (FILED, MATCHED) at the mode's rate."""
-    return {FILED: [_floor_run(mode, "crazyflie")], MATCHED: [_floor_run(mode, "crazyflie", flown=mode)]}
+    return {FILED: [floor_run(mode, "crazyflie")], MATCHED: [floor_run(mode, "crazyflie", flown=mode)]}
 
 
 def critical_path_table(flights, results, floor, floor_critical, measured_share) -> None:

@@ -34,24 +34,23 @@ import statistics
 import sys
 from tempfile import TemporaryDirectory
 
-import emulator_bench  # this folder: the responder and fly_zenoh (python puts it on sys.path)
-from loop_bench import FLOOR_SECONDS, FLOOR_SHARE_TARGET, cfstack
+from loop_bench import FLOOR_SECONDS, FLOOR_SHARE_TARGET, cfstack, floor_run  # this folder (python puts it on sys.path)
 
 from groundstation.clocks import DEFAULT_RATE_HZ
-from model.radio import DEFAULT_MAVLINK_RADIO
 
 MODES = ("moments", "attitude")
 FLIGHT = "flight"  # the point that is `cfstack fly`, not the responder
-# Busy waits (before the commands, after the ack) in us per tick. (0, 0) is the zero-work floor every ratio is to;
-# the points span what the ground station's tick costs now (loop_bench's P and loop CPU) down to a few tens of us.
+ZERO_WORK = (0.0, 0.0)  # the zero-work floor every ratio is to: always a point, the first
+# Busy waits (before the commands, after the ack) in us per tick besides ZERO_WORK: they span what the ground
+# station's tick costs now (loop_bench's P and loop CPU) down to a few tens of us.
 WORK_POINTS_US = {
-    "moments": ((0, 0), (25, 0), (0, 25), (25, 25), (50, 0), (0, 50), (50, 50), (100, 100)),
-    "attitude": ((0, 0), (50, 50), (100, 0), (0, 100), (100, 100), (200, 200)),
+    "moments": ((25.0, 0.0), (0.0, 25.0), (25.0, 25.0), (50.0, 0.0), (0.0, 50.0), (50.0, 50.0), (100.0, 100.0)),
+    "attitude": ((50.0, 50.0), (100.0, 0.0), (0.0, 100.0), (100.0, 100.0), (200.0, 200.0)),
 }
 
 
 def parse_work(text: str) -> tuple[tuple[float, float], ...]:
-    """'B,A B,A ...' -> ((B, A), ...); one clear line for anything else. (0, 0) is always included, first."""
+    """'B,A B,A ...' -> ((B, A), ...); one clear line for anything else."""
     points = []
     for item in text.split():
         try:
@@ -61,13 +60,7 @@ def parse_work(text: str) -> tuple[tuple[float, float], ...]:
         if not (0 <= before < math.inf and 0 <= after < math.inf):  # NaN fails too
             raise SystemExit(f"--work: {item!r}: a busy wait is a finite number of microseconds, not negative")
         points.append((before, after))
-    return tuple(dict.fromkeys([(0.0, 0.0), *points]))
-
-
-def floor_point(mode: str, work_us: tuple[float, float], seconds: float) -> dict:
-    """The matched floor of `mode` with the responder busy work_us = (before its commands, after its ack)."""
-    return emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, seconds, 1.0 / DEFAULT_RATE_HZ[mode], True, 0,
-                                    profile=False, firmware="crazyflie", flown=mode, work_us=work_us)
+    return tuple(points)
 
 
 def flight_point(mode: str) -> dict:
@@ -79,16 +72,19 @@ def flight_point(mode: str) -> dict:
 
 
 def run_mode(mode: str, points: tuple, rounds: int, seconds: float, with_flight: bool) -> dict:
-    """{point: [run, ...]} over the rounds, each run with its 'share' of its round's zero-work floor: the mean of
-    that floor's real-time factor flown first and last in the round (the other points in between, shuffled)."""
-    zero, others = points[0], [*points[1:], *([FLIGHT] if with_flight else [])]
+    """{point: [run, ...]} over the rounds (ZERO_WORK first), each run with its 'share' of its round's zero-work
+    floor: the mean of that floor's real-time factor flown first and last in the round (`points` and the flight in
+    between, shuffled). Each point but the flight is loop_bench's matched floor with the responder busy."""
+    zero = ZERO_WORK
+    others = [*(p for p in dict.fromkeys(points) if p != zero), *([FLIGHT] if with_flight else [])]
     runs: dict = {key: [] for key in (zero, *others)}
     for r in range(rounds):
         order = others[:]
         random.Random(r).shuffle(order)
         this_round, floors = {}, []
         for i, key in enumerate([zero, *order, zero]):
-            run = flight_point(mode) if key == FLIGHT else floor_point(mode, key, seconds)
+            run = (flight_point(mode) if key == FLIGHT
+                   else floor_run(mode, "crazyflie", flown=mode, work_us=key, seconds=seconds))
             if key == zero:
                 floors.append(run)
             else:
@@ -107,7 +103,7 @@ def _label(key) -> str:
 
 def report(mode: str, runs: dict) -> None:
     period_us = 1e6 / DEFAULT_RATE_HZ[mode]
-    rounds = len(runs[(0.0, 0.0)]) // 2
+    rounds = len(runs[ZERO_WORK]) // 2
     print(f"\n{mode} ({DEFAULT_RATE_HZ[mode]:g} Hz ticks, {period_us:g} us simulated each), {rounds} round(s); "
           f"share = real-time factor / the mean of its round's two zero-work floors' (target {FLOOR_SHARE_TARGET:.0%})")
     print(f"{'before us':>9} {'after us':>8} {'RTF':>6} {'share':>6} {'range':>11} {'wall us/tick':>12} "
@@ -120,7 +116,7 @@ def report(mode: str, runs: dict) -> None:
         if key == FLIGHT:
             p = statistics.median(v["p_us"] for v in values)
             cpu = statistics.median(v["loop_cpu_us"] for v in values)
-            print(f"{'cfstack fly --trajectory circle':>18} {rtf:6.2f} {share:6.1%}{mark}{low:5.0%}-{high:4.0%}  "
+            print(f"cfstack fly --trajectory circle {rtf:6.2f} {share:6.1%}{mark}{low:5.0%}-{high:4.0%}  "
                   f"P {p:.0f} us, loop thread CPU {cpu:.0f} us per tick")
             continue
         wall = statistics.median(v["us_per_tick"] for v in values)
@@ -142,8 +138,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.rounds < 1 or args.seconds <= 0:
         raise SystemExit("--rounds must be at least 1 and --seconds positive")
-    points = {mode: parse_work(args.work or " ".join(f"{b},{a}" for b, a in WORK_POINTS_US[mode]))
-              for mode in args.modes}
+    chosen = parse_work(args.work) if args.work else None  # an empty --work: the defaults, as before
+    points = {mode: WORK_POINTS_US[mode] if chosen is None else chosen for mode in args.modes}
     for mode in args.modes:
         report(mode, run_mode(mode, points[mode], args.rounds, args.seconds, args.flight))
 
