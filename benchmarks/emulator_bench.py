@@ -287,7 +287,7 @@ def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str 
     waits = {"tick_wait_s": 0.0, "frames_wait_s": 0.0, "work_s": 0.0}
     perf = time.perf_counter
     clock.send(ClockAck(-1, 0, 0, period_ns=period_ns).pack())
-    ticks, last, cpu0, switches0 = 0, -1, 0.0, 0
+    ticks, last, cpu0, main0, switches0 = 0, -1, 0.0, 0.0, 0
     queued: deque = deque()  # tick records received ahead of the one being answered
     while True:
         t0 = perf()
@@ -316,7 +316,7 @@ def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str 
         t2 = perf()
         if tick.tick == 0:
             uplink.send(codec.encode(VehicleCommand(tick.time_s, CommandKind.ARM), 1))
-            cpu0 = cpu_s()
+            cpu0, main0 = cpu_s(), time.thread_time()
             usage = resource.getrusage(resource.RUSAGE_SELF)
             switches0 = usage.ru_nvcsw + usage.ru_nivcsw
         if work_before_us > 0:
@@ -339,7 +339,7 @@ def responder(endpoint: str, period_s: float, seconds: float, vehicle_name: str 
         if done:
             break
     usage = resource.getrusage(resource.RUSAGE_SELF)
-    print(json.dumps({"ticks": ticks, "cpu_s": cpu_s() - cpu0,
+    print(json.dumps({"ticks": ticks, "cpu_s": cpu_s() - cpu0, "main_cpu_s": time.thread_time() - main0,
                       "context_switches": usage.ru_nvcsw + usage.ru_nivcsw - switches0, **waits}), flush=True)
     for transport in (*sources, uplink, clock):
         transport.close()
@@ -379,9 +379,25 @@ class FlownCommands:
         return out
 
 
+RESPONDER_ARGS = "ENDPOINT PERIOD_S SECONDS VEHICLE FLOWN extpose|no-extpose WORK_BEFORE_US WORK_AFTER_US"
+
+
+def responder_main(argv: list[str]) -> None:
+    """`--responder` + RESPONDER_ARGS, as fly_zenoh passes them; a wrong list gets one line and exit 1."""
+    words = RESPONDER_ARGS.split()
+    try:
+        if len(argv) != len(words):
+            raise ValueError(f"expected {len(words)} arguments, got {len(argv)}")
+        endpoint, period_s, seconds, vehicle, flown, extpose, before_us, after_us = argv
+        numbers = [float(period_s), float(seconds), float(before_us), float(after_us)]
+    except ValueError as err:
+        sys.exit(f"emulator_bench.py --responder {RESPONDER_ARGS}: {err}")
+    responder(endpoint, numbers[0], numbers[1], vehicle, flown, extpose, numbers[2], numbers[3])
+
+
 def main() -> None:
-    if len(sys.argv) > 1 and sys.argv[1] == "--responder":
-        responder(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), *sys.argv[5:8], *map(float, sys.argv[8:10]))
+    if len(sys.argv) > 1 and sys.argv[1] == "--responder":  # fly_zenoh's child
+        responder_main(sys.argv[2:])
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0,
