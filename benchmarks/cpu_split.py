@@ -102,16 +102,17 @@ def fly_flight(mode: str, seed: int) -> dict:
                "--json", "--log", str(log)]
         process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         rows = RowCounter(log / "states.csv")
-        samples: list[tuple[int, float, dict, dict, int]] = []
+        samples: list[tuple[int, float, dict, dict]] = []  # rows, time, emulator's and ground station's threads
+        emulator: list[int] = []  # the child's pid, once it has one
         stop = threading.Event()
 
         def sample() -> None:
-            emulator = None
             while not stop.wait(SAMPLE_S):
-                emulator = emulator or child_pid(process.pid)
-                if emulator is not None:
-                    samples.append((rows.count(), time.monotonic(), thread_cpu_ns(emulator),
-                                    thread_cpu_ns(process.pid), emulator))
+                if not emulator and (pid := child_pid(process.pid)) is not None:
+                    emulator.append(pid)
+                if emulator:
+                    samples.append((rows.count(), time.monotonic(), thread_cpu_ns(emulator[0]),
+                                    thread_cpu_ns(process.pid)))
 
         sampler = threading.Thread(target=sample, daemon=True)
         sampler.start()
@@ -127,10 +128,8 @@ def fly_flight(mode: str, seed: int) -> dict:
         raise RuntimeError(f"the flight was too short to sample ({len(inside)} samples in its window)")
     first, last = inside[0], inside[-1]
     n = last[0] - first[0]
-    emulator_pid = first[4]
-    emulator = split(first[2], last[2], emulator_pid)
-    ground = split(first[3], last[3], process.pid)  # a main thread's id is its process's
-    ns = (*emulator, *ground)
+    # a main thread's id is its process's
+    ns = (*split(first[2], last[2], emulator[0]), *split(first[3], last[3], process.pid))
     return {"wall_us": (last[1] - first[1]) / n * 1e6, "ticks": n, "rtf": summary["timing"]["real_time_factor"],
             **{part: value / n / 1e3 for part, value in zip(PARTS, ns, strict=True)}}
 

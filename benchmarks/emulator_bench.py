@@ -379,20 +379,19 @@ class FlownCommands:
         return out
 
 
-RESPONDER_ARGS = "ENDPOINT PERIOD_S SECONDS VEHICLE FLOWN extpose|no-extpose WORK_BEFORE_US WORK_AFTER_US"
+RESPONDER_USAGE = "--responder ENDPOINT PERIOD_S SECONDS [VEHICLE FLOWN EXTPOSE WORK_BEFORE_US WORK_AFTER_US]"
 
 
 def responder_main(argv: list[str]) -> None:
-    """`--responder` + RESPONDER_ARGS, as fly_zenoh passes them; a wrong list gets one line and exit 1."""
-    words = RESPONDER_ARGS.split()
+    """The responder child's arguments (RESPONDER_USAGE, the module's docstring: what is left out takes the
+    responder's defaults), as fly_zenoh passes them; a wrong list gets one line and exit 1."""
     try:
-        if len(argv) != len(words):
-            raise ValueError(f"expected {len(words)} arguments, got {len(argv)}")
-        endpoint, period_s, seconds, vehicle, flown, extpose, before_us, after_us = argv
-        numbers = [float(period_s), float(seconds), float(before_us), float(after_us)]
+        if not 3 <= len(argv) <= 8:
+            raise ValueError(f"expected 3 to 8 arguments, got {len(argv)}")
+        period_s, seconds, *work_us = (float(v) for v in (argv[1], argv[2], *argv[6:8]))
     except ValueError as err:
-        sys.exit(f"emulator_bench.py --responder {RESPONDER_ARGS}: {err}")
-    responder(endpoint, numbers[0], numbers[1], vehicle, flown, extpose, numbers[2], numbers[3])
+        sys.exit(f"emulator_bench.py {RESPONDER_USAGE}: {err}")
+    responder(argv[0], period_s, seconds, *argv[3:6], *work_us)
 
 
 def main() -> None:
