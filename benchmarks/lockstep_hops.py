@@ -2,7 +2,9 @@
 
 Takes in: the flight mode (--mode), how many flights (--flights), and --without-bookkeeping, which flies each
 flight a second time, interleaved, with the ground station's work after the ack (truth, log row, flight
-record) left out: a what-if, not a flight anyone would fly (its grade is meaningless).
+record) left out: a what-if, not a flight anyone would fly (its grade is meaningless), and --floor, which
+flies loop_bench's matched floor (the emulator against the zero-work responder flying the mode's own command)
+twice before and twice after each flight (or pair of flights).
 Gives out: per flight, medians (and quartiles) of one lockstep cycle's parts, in us:
 - P: the ground station's tick record taken -> its ack sent (its critical path, as the summary's);
 - ack hop: ack sent -> the emulator handling it;
@@ -13,6 +15,9 @@ Gives out: per flight, medians (and quartiles) of one lockstep cycle's parts, in
   blocked for (its record was not in when it asked);
 - of those, the share whose record was published before the ground station started to block, and for how
   long it had been busy since; then the hop counted from when both were ready (the later of the two).
+With --floor, each flight's real-time factor (its ticks at the mode's rate over the loop's wall time) as a
+share of the median of its four floor runs (loop_bench's "new/matched"), and the medians (range) of those shares
+over the flights. The stamps cost the flights a little (below), not the floor runs.
 When the ground station waits for each record, n ticks take ack hop + E + record hop + P: the line "n x period"
 checks that against the measured period. Plus the summary's wall time per tick, the flight loop thread's CPU
 and the record wait per tick.
@@ -24,6 +29,7 @@ its stamps at exit. A stamp costs about 0.4 us (timeit, here); each process take
 the emulator unpacks each ack once more.
 
 Usage: python benchmarks/lockstep_hops.py [--mode moments|attitude] [--flights N] [--without-bookkeeping]
+                                         [--floor]
 """
 
 from __future__ import annotations
@@ -36,7 +42,9 @@ import sys
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
-from loop_bench import cfstack  # this folder: `cfstack ... --json` in a child process
+from loop_bench import cfstack, floor_run  # this folder: `cfstack ... --json` in a child process; the floor
+
+from groundstation.clocks import DEFAULT_RATE_HZ
 
 STAMPS_ENV = "CFSTACK_HOPS_STAMPS"  # the prefix of the stamp files each process writes
 SKIP_ENV = "CFSTACK_HOPS_WITHOUT_BOOKKEEPING"
@@ -197,6 +205,8 @@ def main() -> int:
     parser.add_argument("--flights", type=int, default=2)
     parser.add_argument("--without-bookkeeping", action="store_true",
                         help="also fly each flight without the work after the ack (truth, log row, record)")
+    parser.add_argument("--floor", action="store_true",
+                        help="also fly the matched floor around each flight and give each flight's share of it")
     args = parser.parse_args()
     sys.stdout.reconfigure(line_buffering=True)  # each flight's lines before the next one's progress
     if args.flights < 1:
@@ -207,13 +217,43 @@ def main() -> int:
         (folder / "sitecustomize.py").write_text(SITECUSTOMIZE)
         print(f"lockstep cycle of the {args.mode} circle (cfstack fly, this tree), {args.flights} flight(s)"
               + (", each also without the bookkeeping after the ack" if args.without_bookkeeping else ""))
+        shares = {arm: [] for arm in arms}
         for i in range(args.flights):
+            floors = matched_floor(args.mode) if args.floor else []
+            flown = {}
             for skip in arms if i % 2 == 0 else arms[::-1]:  # interleaved: the machine's load drifts
                 index = 2 * i + skip
                 print(f"  flying {i + 1}/{args.flights}{' without bookkeeping' if skip else ''}", file=sys.stderr,
                       flush=True)
-                report(f"flight {i + 1}{' without bookkeeping' if skip else ''}", fly(args.mode, folder, index, skip))
+                flown[skip] = fly(args.mode, folder, index, skip)
+                report(f"flight {i + 1}{' without bookkeeping' if skip else ''}", flown[skip])
+            if args.floor:
+                floors += matched_floor(args.mode)
+                floor = statistics.median(floors)
+                print(f"  matched floor {floor:.2f}x (runs {', '.join(f'{rtf:.1f}x' for rtf in floors)})")
+                for skip in arms:
+                    rtf = ticks_rtf(flown[skip]["timing"], args.mode)
+                    shares[skip].append(rtf / floor)
+                    print(f"  flight {i + 1}{' without bookkeeping' if skip else ''}: {rtf:.2f}x, "
+                          f"{shares[skip][-1]:.0%} of the matched floor")
+        if args.floor:
+            for skip in arms:
+                print(f"{'without' if skip else 'with'} the work after the ack: {statistics.median(shares[skip]):.0%} "
+                      f"({min(shares[skip]):.0%}-{max(shares[skip]):.0%}) of the matched floor, median (range) "
+                      f"over {args.flights} flight(s); target 80 % (issue 19)")
     return 0
+
+
+def ticks_rtf(timing: dict, mode: str) -> float:
+    """Simulated s (ticks at the mode's rate) per wall s of the flight loop: the summary's real_time_factor takes
+    the simulated time from the flight record, which a flight without bookkeeping does not keep."""
+    return timing["ticks"] / DEFAULT_RATE_HZ[mode] / timing["loop_wall_s"]
+
+
+def matched_floor(mode: str, runs: int = 2) -> list[float]:
+    """Real-time factors of `runs` matched floor runs (loop_bench's, the crazyflie firmware that cfstack fly flies)."""
+    print(f"  flying the matched floor ({runs} runs)", file=sys.stderr, flush=True)
+    return [floor_run(mode, "crazyflie", flown=mode)["rtf"] for _ in range(runs)]
 
 
 if __name__ == "__main__":
