@@ -2,7 +2,7 @@
 
 Takes in: --mode (moments or attitude; default moments), --rounds N (default 3), --seed.
 Gives out (printed): per round and as medians, the CPU time per tick (us) of
-- the matched floor (loop_bench.floor_run: the emulator with the crazyflie firmware, in this process, against
+- the matched floor (loop_bench.matched_floor_run: the emulator with the crazyflie firmware, in this process, against
   emulator_bench's responder flying the mode's own command, each pose forwarded): the emulator's main thread and
   its other threads (zenoh's), the responder's main thread and its other threads, all from tick 0 to the end;
 - `cfstack fly --trajectory circle` in that mode: its emulator child's main thread and other threads, the ground
@@ -136,7 +136,7 @@ def fly_flight(mode: str, seed: int) -> dict:
 
 def fly_floor(mode: str) -> dict:
     """The matched floor; CPU us per tick per part from tick 0 to the end."""
-    run = loop_bench.floor_run(mode, "crazyflie", mode)
+    run = loop_bench.matched_floor_run(mode)
     responder = run["responder"]
     per_tick = 1e6 / run["ticks"]
     return {"wall_us": run["us_per_tick"], "ticks": run["ticks"], "rtf": run["rtf"],

@@ -42,7 +42,7 @@ import sys
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
-from loop_bench import cfstack, floor_run  # this folder: `cfstack ... --json` in a child process; the floor
+from loop_bench import cfstack, matched_floor_run  # this folder: `cfstack ... --json` in a child process; the floor
 
 from groundstation.clocks import DEFAULT_RATE_HZ
 
@@ -251,9 +251,9 @@ def ticks_rtf(timing: dict, mode: str) -> float:
 
 
 def matched_floor(mode: str, runs: int = 2) -> list[float]:
-    """Real-time factors of `runs` matched floor runs (loop_bench's, the crazyflie firmware that cfstack fly flies)."""
+    """Real-time factors of `runs` of loop_bench's matched floor runs."""
     print(f"  flying the matched floor ({runs} runs)", file=sys.stderr, flush=True)
-    return [floor_run(mode, "crazyflie", flown=mode)["rtf"] for _ in range(runs)]
+    return [matched_floor_run(mode)["rtf"] for _ in range(runs)]
 
 
 if __name__ == "__main__":

@@ -61,7 +61,7 @@ from link.mavlink.tlog import read_tlog
 from link.messages import ThrustMoment
 from link.transports.base import free_loopback_port
 from model.radio import DEFAULT_MAVLINK_RADIO
-from model.vehicle import load_vehicle
+from model.vehicle import DEFAULT_FIRMWARE, load_vehicle
 from simulator.emulator import Emulator
 
 MAZE = "test_lab_1"
@@ -69,7 +69,7 @@ FLOOR_RUNS = 3
 FLOOR_SECONDS = 10.0  # simulated seconds per floor run
 TARGET_RTF = {"moments": 5.0, "attitude": 20.0}  # issue 4's lockstep targets, each at its mode's default rate
 FLOOR_SHARE_TARGET = 0.8  # issue 19: each flight at >= 80 % of the floor's real-time factor
-FLOOR_FIRMWARES = ("ideal", "crazyflie")  # the floor with each onboard side (cfstack fly flies crazyflie)
+FLOOR_FIRMWARES = ("ideal", DEFAULT_FIRMWARE)  # the floor with each onboard side (cfstack fly flies the default)
 BASELINE = "baseline"  # the floor key of the baseline revision's own floor
 FILED, MATCHED = "as filed", "matched"  # each flight's floor: the responder as filed, and flown as the flight
 # The baseline of section 1: the last commit before issue 19's work (--baseline REV to change it)
@@ -111,6 +111,12 @@ def floor_run(mode: str, firmware: str, flown: str = emulator_bench.FIXED, work_
     the responder's busy waits per tick before its commands and after its ack (work_budget.py; none here)."""
     return emulator_bench.fly_zenoh(DEFAULT_MAVLINK_RADIO, seconds, 1.0 / DEFAULT_RATE_HZ[mode], True, 0,
                                     profile=False, firmware=firmware, flown=flown, work_us=work_us)
+
+
+def matched_floor_run(mode: str, work_us: tuple[float, float] = (0.0, 0.0), seconds: float = FLOOR_SECONDS) -> dict:
+    """One run of the matched floor: floor_run flown as a `cfstack fly` flight in `mode` is, with its command and
+    its firmware (the default); `work_us` as floor_run's."""
+    return floor_run(mode, DEFAULT_FIRMWARE, flown=mode, work_us=work_us, seconds=seconds)
 
 
 # The baseline revision's own floor: its emulator and its responder (its emulator_bench, run from the extracted
@@ -268,8 +274,8 @@ def lockstep_table(tmp: Path, quick: bool, rev: str, rounds: int) -> None:
 
 
 def _flight_floor_runs(mode: str) -> dict[str, list[dict]]:
-    """One floor run of the crazyflie firmware each way (FILED, MATCHED) at the mode's rate."""
-    return {FILED: [floor_run(mode, "crazyflie")], MATCHED: [floor_run(mode, "crazyflie", flown=mode)]}
+    """One floor run of the firmware cfstack fly flies, each way (FILED, MATCHED), at the mode's rate."""
+    return {FILED: [floor_run(mode, DEFAULT_FIRMWARE)], MATCHED: [matched_floor_run(mode)]}
 
 
 def critical_path_table(flights, results, floor, floor_critical, measured_share) -> None:

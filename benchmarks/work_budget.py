@@ -34,7 +34,8 @@ import statistics
 import sys
 from tempfile import TemporaryDirectory
 
-from loop_bench import FLOOR_SECONDS, FLOOR_SHARE_TARGET, cfstack, floor_run  # this folder (python puts it on sys.path)
+# this folder (python puts it on sys.path)
+from loop_bench import FLOOR_SECONDS, FLOOR_SHARE_TARGET, cfstack, matched_floor_run
 
 from groundstation.clocks import DEFAULT_RATE_HZ
 
@@ -84,7 +85,7 @@ def run_mode(mode: str, points: tuple, rounds: int, seconds: float, with_flight:
         this_round, floors = {}, []
         for i, key in enumerate([zero, *order, zero]):
             run = (flight_point(mode) if key == FLIGHT
-                   else floor_run(mode, "crazyflie", flown=mode, work_us=key, seconds=seconds))
+                   else matched_floor_run(mode, work_us=key, seconds=seconds))
             if key == zero:
                 floors.append(run)
             else:
