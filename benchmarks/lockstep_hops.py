@@ -48,6 +48,7 @@ from groundstation.clocks import DEFAULT_RATE_HZ
 
 STAMPS_ENV = "CFSTACK_HOPS_STAMPS"  # the prefix of the stamp files each process writes
 SKIP_ENV = "CFSTACK_HOPS_WITHOUT_BOOKKEEPING"
+WITHOUT = " without bookkeeping"  # a flight's label when the work after the ack was left out
 WARM_UP_TICKS = 100  # the first ticks (start-up, arming) are left out
 
 # Installed as sitecustomize.py in both processes. It patches a module when it is first imported (a meta-path
@@ -223,10 +224,9 @@ def main() -> int:
             flown = {}
             for skip in arms if i % 2 == 0 else arms[::-1]:  # interleaved: the machine's load drifts
                 index = 2 * i + skip
-                print(f"  flying {i + 1}/{args.flights}{' without bookkeeping' if skip else ''}", file=sys.stderr,
-                      flush=True)
+                print(f"  flying {i + 1}/{args.flights}{WITHOUT if skip else ''}", file=sys.stderr, flush=True)
                 flown[skip] = fly(args.mode, folder, index, skip)
-                report(f"flight {i + 1}{' without bookkeeping' if skip else ''}", flown[skip])
+                report(f"flight {i + 1}{WITHOUT if skip else ''}", flown[skip])
             if args.floor:
                 floors += matched_floor(args.mode)
                 floor = statistics.median(floors)
@@ -234,8 +234,8 @@ def main() -> int:
                 for skip in arms:
                     rtf = ticks_rtf(flown[skip]["timing"], args.mode)
                     shares[skip].append(rtf / floor)
-                    print(f"  flight {i + 1}{' without bookkeeping' if skip else ''}: {rtf:.2f}x, "
-                          f"{shares[skip][-1]:.0%} of the matched floor")
+                    print(f"  flight {i + 1}{WITHOUT if skip else ''}: {rtf:.2f}x, {rtf / floor:.0%} of the matched "
+                          "floor")
         if args.floor:
             for skip in arms:
                 print(f"{'without' if skip else 'with'} the work after the ack: {statistics.median(shares[skip]):.0%} "
