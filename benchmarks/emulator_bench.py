@@ -48,8 +48,9 @@ from link.messages import AttitudeTarget, CommandKind, ExternalPose, MocapPose, 
 from link.transports import open_transport
 from link.transports.zenoh_process import let_woken_reader_run, use_lockstep_settings
 from link.transports.zenoh_session import PrivateEndpoint
+from model.firmwares import FIRMWARE_VEHICLES
 from model.radio import load_radio_profile
-from model.vehicle import FIRMWARE_VEHICLES, GRAVITY_MPS2, load_mocap_room, load_vehicle
+from model.vehicle import GRAVITY_MPS2, load_mocap_room, load_vehicle
 from simulator.emulator import Emulator, EmulatorConfig
 
 PHYSICS_RATE_HZ = 1000.0

@@ -60,8 +60,9 @@ from link.mavlink.codec import ActuatorLimits, FrameParser
 from link.mavlink.tlog import read_tlog
 from link.messages import ThrustMoment
 from link.transports.base import free_loopback_port
+from model.firmwares import DEFAULT_FIRMWARE
 from model.radio import DEFAULT_MAVLINK_RADIO
-from model.vehicle import DEFAULT_FIRMWARE, load_vehicle
+from model.vehicle import load_vehicle
 from simulator.emulator import Emulator
 
 MAZE = "test_lab_1"

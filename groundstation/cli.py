@@ -60,8 +60,9 @@ from link.transports.zenoh_session import (
     zenoh_options_from_args,
 )
 from model.errors import OneLineParser, UserError
+from model.firmwares import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_model
 from model.options import float_in, non_negative_float, positive_float, seed, whole_number
-from model.vehicle import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_model, load_vehicle
+from model.vehicle import load_vehicle
 from model.world import World, load_world
 
 if TYPE_CHECKING:
@@ -282,7 +283,7 @@ def _settings(args, clock: str) -> dict:
     if args.mode == "position" and args.latency_compensation:
         raise UserError("argument --latency-compensation: not with --mode position (the vehicle's own position "
                         "controller flies the reference; there is no ground-station command to predict)")
-    if args.mode == "position" and getattr(args, "firmware", "crazyflie") != "crazyflie":
+    if args.mode == "position" and getattr(args, "firmware", DEFAULT_FIRMWARE) != "crazyflie":
         raise UserError("argument --mode position: needs --firmware crazyflie (the ideal vehicle has no onboard "
                         "position controller)")
     if args.radio_link is not None:

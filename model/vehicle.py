@@ -93,17 +93,6 @@ class Vehicle:
         return np.array([np.abs(a[i]).sum() * w2max / 2.0 for i in (1, 2, 3)])
 
 
-# The vehicle file each onboard side (simulator --firmware) is written for: the faithful Crazyflie firmware
-# mixes for the X-layout Crazyflie 2.1; the ideal law flies the course's model. A command given a firmware
-# and no --vehicle-model flies this one; the ground station alone (which cannot know) flies the default's.
-FIRMWARE_VEHICLES = {"ideal": "crazyflie", "crazyflie": "cf21"}
-DEFAULT_FIRMWARE = "crazyflie"
-
-
-def default_vehicle_model(firmware: str = DEFAULT_FIRMWARE) -> str:
-    return FIRMWARE_VEHICLES[firmware]
-
-
 def load_vehicle(name_or_path: str | Path = "crazyflie") -> Vehicle:
     path = resolve(name_or_path, "model", "params/vehicles", "vehicle")
     p = Params.load(path)

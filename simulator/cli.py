@@ -26,6 +26,7 @@ from link.keys import DEFAULT_PREFIX, MAX_VEHICLE_ID
 from link.mavlink.signing import add_signing_arguments, signing_from_args
 from link.transports.zenoh_session import DEFAULT_ENDPOINT, add_zenoh_arguments, zenoh_options_from_args
 from model.errors import OneLineParser, UserError
+from model.firmwares import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_model
 from model.options import finite_float, positive_float, seed, whole_number
 
 if TYPE_CHECKING:
@@ -74,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "realtime); default: zenoh, on each vehicle's keys. Mocap, truth and the lockstep clock stay "
                         "on zenoh (the ground network)")
     p.add_argument("--physics-rate", type=positive_float, default=1000.0, help="physics steps per second")
-    p.add_argument("--firmware", choices=("crazyflie", "ideal"), default="crazyflie",
+    p.add_argument("--firmware", choices=tuple(FIRMWARE_VEHICLES), default=DEFAULT_FIRMWARE,
                    help="the onboard side: crazyflie (default: the Crazyflie's PID stabilizer on its own estimate, "
                         "PWM, battery) or ideal (the lab report's geometric law on the true state, exact mixer)")
     p.add_argument("--ideal", dest="ideal_parts", action="append", default=[], choices=("estimator", "battery"),
@@ -116,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
     from model.radio import DEFAULT_CRTP_RADIO, DEFAULT_MAVLINK_RADIO, load_radio_profile
-    from model.vehicle import default_vehicle_model, load_mocap_room, load_vehicle
+    from model.vehicle import load_mocap_room, load_vehicle
     from model.world import load_world
     from simulator.emulator_config import EmulatorConfig
     from simulator.faults import Outage

@@ -41,8 +41,9 @@ from groundstation.sweep.table import cell_of, done, read_csv, survival_lines, t
 from groundstation.usercode.adapters import CONTROLLER_OUTPUTS
 from groundstation.usercode.loader import builtin_or_user_file, looks_like_path, split_spec
 from model.errors import OneLineParser, UserError
+from model.firmwares import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_model
 from model.options import positive_float, seed, whole_number
-from model.vehicle import default_vehicle_model, load_vehicle
+from model.vehicle import load_vehicle
 from model.world import load_world
 
 DEFAULT_BASE_PROFILE = "ideal"  # no impairment but the swept ones
@@ -99,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=positive_float, default=DEFAULT_CELL_TIMEOUT_S, metavar="S",
                    help=f"wall-clock limit of one flight, s (default {DEFAULT_CELL_TIMEOUT_S:g}); it is retried once, "
                         "then recorded as wall_timeout")
-    p.add_argument("--firmware", choices=("crazyflie", "ideal"), default="crazyflie",
+    p.add_argument("--firmware", choices=tuple(FIRMWARE_VEHICLES), default=DEFAULT_FIRMWARE,
                    help="the emulated vehicle's onboard side for every flight (see `cfstack fly --help`)")
     p.add_argument("--resume", action="store_true", help="skip the flights already in OUT/sweep.csv")
     return p

@@ -115,6 +115,7 @@ def test_a_crash_says_what_was_touched_where_and_when(flights):
     ("step", "--jobs", "0"),
     ("groundstation", "--rate", "inf"), ("groundstation", "--vehicle", "0"), ("sweep", "--jobs", "0"),
     ("plan", "--margin", "nan"), ("emulator", "--seed", "-1"),
+    ("fly", "--firmware", "px4"), ("emulator", "--firmware", "px4"), ("sweep", "--firmware", "px4"),
 ])
 def test_a_bad_option_is_one_line_and_exit_code_2_at_once(command, option, value):
     extra = {"sweep": ("--latency", "0", "--loss", "0"), "plan": ("missing.json",)}.get(command, ())
