@@ -36,11 +36,12 @@ from emulator_bench import LEVEL_WXYZ, HeightHold
 from git_baseline import REPO, baseline_tree
 
 from link.messages import AttitudeTarget, ExternalPose, MocapPose, ThrustMoment
+from model.firmwares import FIRMWARE_VEHICLES
 from model.vehicle import load_mocap_room, load_vehicle
 from simulator.vehicle_sim import SimVehicle
 
 VEHICLE = "cf21"
-FIRMWARES = ("ideal", "crazyflie")
+FIRMWARES = tuple(FIRMWARE_VEHICLES)
 MAZE = SHARED_WORLDS / "test_lab_1.json"
 TARGET_MOMENTS_RTF = 5.0
 
@@ -117,7 +118,7 @@ def in_process_table(seconds: float, repeats: int) -> None:
         for r in range(repeats):
             for firmware in FIRMWARES:
                 times[firmware].append(hover_in_process(firmware, mode, seconds, seed=r))
-        ideal, faithful = (statistics.median(times[f]) for f in FIRMWARES)
+        ideal, faithful = statistics.median(times["ideal"]), statistics.median(times["crazyflie"])
         print(f"{mode:<10} {ideal:>14.1f} {faithful:>17.1f} {faithful / ideal:>15.2f}")
 
 

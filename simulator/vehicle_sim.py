@@ -40,6 +40,7 @@ import numpy as np
 
 from link.messages import Message, MotorOutputs, MotorOutputsRequest, TimeSync, TruthState
 from model.errors import UserError, WorldError
+from model.firmwares import FIRMWARE_VEHICLES
 from model.frames import rotate
 from model.vehicle import GRAVITY_MPS2, MocapRoom, Vehicle
 from model.world import World
@@ -348,9 +349,6 @@ class SimVehicle:
         self._out.append(Output(t, "truth", self.dynamics.truth()))
 
 
-FIRMWARES = ("ideal", "crazyflie")
-
-
 def make_firmware(kind: str, vehicle: Vehicle, params: FirmwareParams, ideal_parts: tuple[str, ...] = ()) -> Firmware:
     """The onboard side: "ideal" (the lab report's geometric law on the true state, exact mixer) or
     "crazyflie" (the Crazyflie's own stabilizer on its own estimate: simulator.crazyflie), with the parts
@@ -361,7 +359,7 @@ def make_firmware(kind: str, vehicle: Vehicle, params: FirmwareParams, ideal_par
         from simulator.crazyflie.stabilizer import CrazyflieFirmware
 
         return CrazyflieFirmware(vehicle, params, ideal=ideal_parts)
-    raise UserError(f"firmware: '{kind}' is not one of {', '.join(FIRMWARES)}")
+    raise UserError(f"firmware: '{kind}' is not one of {', '.join(FIRMWARE_VEHICLES)}")
 
 
 def _release_time(output: Output) -> float:

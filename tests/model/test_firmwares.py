@@ -10,9 +10,12 @@ import pytest
 
 from groundstation.cli import fly_parser
 from groundstation.sweep.cli import build_parser as sweep_parser
+from model.errors import UserError
 from model.firmwares import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES, default_vehicle_model
 from model.vehicle import load_vehicle
 from simulator.cli import build_parser as emulator_parser
+from simulator.firmware import load_firmware_params
+from simulator.vehicle_sim import make_firmware
 
 
 def _firmware_option(parser) -> tuple[tuple[str, ...], str]:
@@ -30,6 +33,19 @@ def test_fly_sweep_and_the_emulator_offer_the_same_firmwares_with_the_same_defau
 def test_each_firmware_flies_a_vehicle_file_that_loads(firmware):
     vehicle = load_vehicle(default_vehicle_model(firmware))
     assert vehicle.mass_kg > 0 and len(vehicle.rotor_positions_flu_m) == 4
+
+
+@pytest.mark.parametrize("firmware", sorted(FIRMWARE_VEHICLES))
+def test_the_emulator_makes_each_firmware_offered(firmware):
+    vehicle = load_vehicle(default_vehicle_model(firmware))
+    made = make_firmware(firmware, vehicle, load_firmware_params())
+    assert type(made).__name__ == {"ideal": "Firmware", "crazyflie": "CrazyflieFirmware"}[firmware]
+
+
+def test_an_unknown_firmware_is_one_line_naming_the_ones_offered():
+    with pytest.raises(UserError) as raised:
+        make_firmware("px4", load_vehicle(default_vehicle_model()), load_firmware_params())
+    assert str(raised.value) == "firmware: 'px4' is not one of ideal, crazyflie"
 
 
 def test_the_faithful_firmware_flies_an_x_layout_vehicle():
