@@ -1,10 +1,12 @@
 """Where a lockstep tick's wall time goes, from both processes' clocks (issue 19).
 
-Takes in: the flight mode (--mode), how many flights (--flights), and --without-bookkeeping, which flies each
-flight a second time, interleaved, with the ground station's work after the ack (truth, log row, flight
-record) left out: a what-if, not a flight anyone would fly (its grade is meaningless), and --floor, which
-flies loop_bench's matched floor (the emulator against the zero-work responder flying the mode's own command)
-twice before and twice after each flight (or pair of flights).
+Takes in: the flight mode (--mode), how many flights (--flights), and what a second flight of each pair leaves
+out, flown interleaved with the first: --without-bookkeeping, the ground station's work after the ack (truth,
+log row, flight record); --without-truth, the truth channel itself (the emulator publishes no truth state, so
+the ground station neither waits for, receives nor decodes any; crash reports still go); both, both. These are
+what-ifs, not flights anyone would fly (their grade is meaningless). --floor flies loop_bench's matched floor
+(the emulator against the zero-work responder flying the mode's own command) twice before and twice after each
+flight (or pair of flights).
 Gives out: per flight, medians (and quartiles) of one lockstep cycle's parts, in us:
 - P: the ground station's tick record taken -> its ack sent (its critical path, as the summary's);
 - ack hop: ack sent -> the emulator handling it;
@@ -29,12 +31,13 @@ its stamps at exit. A stamp costs about 0.4 us (timeit, here); each process take
 the emulator unpacks each ack once more.
 
 Usage: python benchmarks/lockstep_hops.py [--mode moments|attitude] [--flights N] [--without-bookkeeping]
-                                         [--floor]
+                                         [--without-truth] [--floor]
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import statistics
@@ -47,8 +50,8 @@ from loop_bench import cfstack, matched_floor_run  # this folder: `cfstack ... -
 from groundstation.clocks import DEFAULT_RATE_HZ
 
 STAMPS_ENV = "CFSTACK_HOPS_STAMPS"  # the prefix of the stamp files each process writes
-SKIP_ENV = "CFSTACK_HOPS_WITHOUT_BOOKKEEPING"
-WITHOUT = " without bookkeeping"  # a flight's label when the work after the ack was left out
+SKIP_ENV = "CFSTACK_HOPS_LEAVE_OUT"  # what the second flight of a pair leaves out: "bookkeeping", "truth" or both
+LEAVE_OUT = ("bookkeeping", "truth")
 WARM_UP_TICKS = 100  # the first ticks (start-up, arming) are left out
 
 # Installed as sitecustomize.py in both processes. It patches a module when it is first imported (a meta-path
@@ -57,6 +60,7 @@ SITECUSTOMIZE = '''
 import atexit, importlib.machinery, json, os, sys, time
 
 _OUT = os.environ.get("@STAMPS_ENV@")
+_LEFT_OUT = set(filter(None, os.environ.get("@SKIP_ENV@", "").split(",")))
 if _OUT:
     _stamps = {}
     _clock = time.monotonic
@@ -85,9 +89,14 @@ if _OUT:
         atexit.register(_dump, "groundstation")
 
     def _flight(flight):
-        if os.environ.get("@SKIP_ENV@"):
+        if "bookkeeping" in _LEFT_OUT:
             flight.FlightLoop.write_row = lambda self, now, step, out: None
             flight.FlightLoop.absorb_truth = lambda self: None
+
+    def _vehicle_sim(vehicle_sim):
+        if "truth" in _LEFT_OUT:  # keep the truth schedule, publish nothing on it
+            assert callable(vehicle_sim.SimVehicle._emit_truth)  # a renamed method would leave truth flowing
+            vehicle_sim.SimVehicle._emit_truth = lambda self, t: self._truth.advance(t)
 
     def _emulator(lockstep):
         from link.clock import unpack_ack
@@ -110,7 +119,7 @@ if _OUT:
             json.dump(_stamps, f)
 
     _PATCHES = {"groundstation.clocks": _ground_station, "groundstation.flight": _flight,
-                "simulator.lockstep": _emulator}
+                "simulator.lockstep": _emulator, "simulator.vehicle_sim": _vehicle_sim}
 
     class _Patcher:
         @staticmethod
@@ -131,15 +140,17 @@ if _OUT:
 '''.replace("@STAMPS_ENV@", STAMPS_ENV).replace("@SKIP_ENV@", SKIP_ENV)
 
 
-def fly(mode: str, folder: Path, index: int, skip: bool) -> dict:
-    """One `cfstack fly` circle with stamps; returns its summary's timing and both processes' stamps."""
+def fly(mode: str, folder: Path, index: int, left_out: tuple[str, ...] = ()) -> dict:
+    """One `cfstack fly` circle with stamps, leaving out what `left_out` names (LEAVE_OUT); returns its summary's
+    timing and both processes' stamps."""
     prefix = folder / f"stamps{index}"
-    env = dict(os.environ, **{STAMPS_ENV: str(prefix)})
+    env = dict(os.environ, **{STAMPS_ENV: str(prefix), SKIP_ENV: ",".join(left_out)})
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(folder), env.get("PYTHONPATH")]))
-    if skip:
-        env[SKIP_ENV] = "1"
-    timing = cfstack("fly", "--trajectory", "circle", "--mode", mode, "--log", str(folder / f"log{index}"),
-                     env=env)["timing"]
+    log = folder / f"log{index}"
+    timing = cfstack("fly", "--trajectory", "circle", "--mode", mode, "--log", str(log), env=env)["timing"]
+    if "bookkeeping" not in left_out and truth_logged(log / "states.csv") == ("truth" in left_out):
+        raise SystemExit(f"lockstep_hops: flight {index} {'logged' if 'truth' in left_out else 'did not log'} truth, "
+                         "against what it was to leave out")
     stamps = {}
     for role in ("groundstation", "emulator"):
         files = list(folder.glob(f"stamps{index}.{role}.*.json"))
@@ -148,6 +159,12 @@ def fly(mode: str, folder: Path, index: int, skip: bool) -> dict:
         stamps[role] = {kind: {int(k): v for k, v in by_tick.items()}
                         for kind, by_tick in json.loads(files[0].read_text()).items()}
     return {"timing": timing, **stamps}
+
+
+def truth_logged(states_csv: Path) -> bool:
+    """Whether any row of a flight's states.csv has a truth position."""
+    with states_csv.open(newline="") as f:
+        return any(row["truth_x_m"] for row in csv.DictReader(f))
 
 
 def quartiles_us(values: list[float]) -> tuple[float, float, float]:
@@ -206,27 +223,31 @@ def main() -> int:
     parser.add_argument("--flights", type=int, default=2)
     parser.add_argument("--without-bookkeeping", action="store_true",
                         help="also fly each flight without the work after the ack (truth, log row, record)")
+    parser.add_argument("--without-truth", action="store_true",
+                        help="also fly each flight without the truth channel (the emulator publishes no truth)")
     parser.add_argument("--floor", action="store_true",
                         help="also fly the matched floor around each flight and give each flight's share of it")
     args = parser.parse_args()
     sys.stdout.reconfigure(line_buffering=True)  # each flight's lines before the next one's progress
     if args.flights < 1:
         parser.error("--flights must be at least 1")
-    arms = [False, True] if args.without_bookkeeping else [False]
+    left_out = tuple(name for name in LEAVE_OUT if getattr(args, f"without_{name}"))
+    arms = [False, True] if left_out else [False]
+    without = " without " + " or ".join(left_out)  # the second flight's label
     with TemporaryDirectory() as tmp:
         folder = Path(tmp)
         (folder / "sitecustomize.py").write_text(SITECUSTOMIZE)
         print(f"lockstep cycle of the {args.mode} circle (cfstack fly, this tree), {args.flights} flight(s)"
-              + (", each also without the bookkeeping after the ack" if args.without_bookkeeping else ""))
+              + (f", each also{without}" if left_out else ""))
         shares = {arm: [] for arm in arms}
         for i in range(args.flights):
             floors = matched_floor(args.mode) if args.floor else []
             flown = {}
             for skip in arms if i % 2 == 0 else arms[::-1]:  # interleaved: the machine's load drifts
                 index = 2 * i + skip
-                print(f"  flying {i + 1}/{args.flights}{WITHOUT if skip else ''}", file=sys.stderr, flush=True)
-                flown[skip] = fly(args.mode, folder, index, skip)
-                report(f"flight {i + 1}{WITHOUT if skip else ''}", flown[skip])
+                print(f"  flying {i + 1}/{args.flights}{without if skip else ''}", file=sys.stderr, flush=True)
+                flown[skip] = fly(args.mode, folder, index, left_out if skip else ())
+                report(f"flight {i + 1}{without if skip else ''}", flown[skip])
             if args.floor:
                 floors += matched_floor(args.mode)
                 floor = statistics.median(floors)
@@ -234,11 +255,11 @@ def main() -> int:
                 for skip in arms:
                     rtf = ticks_rtf(flown[skip]["timing"], args.mode)
                     shares[skip].append(rtf / floor)
-                    print(f"  flight {i + 1}{WITHOUT if skip else ''}: {rtf:.2f}x, {rtf / floor:.0%} of the matched "
+                    print(f"  flight {i + 1}{without if skip else ''}: {rtf:.2f}x, {rtf / floor:.0%} of the matched "
                           "floor")
         if args.floor:
             for skip in arms:
-                print(f"{'without' if skip else 'with'} the work after the ack: {statistics.median(shares[skip]):.0%} "
+                print(f"{without.strip() if skip else 'as it is'}: {statistics.median(shares[skip]):.0%} "
                       f"({min(shares[skip]):.0%}-{max(shares[skip]):.0%}) of the matched floor, median (range) "
                       f"over {args.flights} flight(s); target 80 % (issue 19)")
     return 0
