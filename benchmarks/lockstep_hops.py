@@ -37,7 +37,6 @@ Usage: python benchmarks/lockstep_hops.py [--mode moments|attitude] [--flights N
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import statistics
@@ -48,6 +47,7 @@ from tempfile import TemporaryDirectory
 from loop_bench import cfstack, matched_floor_run  # this folder: `cfstack ... --json` in a child process; the floor
 
 from groundstation.clocks import DEFAULT_RATE_HZ
+from groundstation.logread import read_log
 
 STAMPS_ENV = "CFSTACK_HOPS_STAMPS"  # the prefix of the stamp files each process writes
 SKIP_ENV = "CFSTACK_HOPS_LEAVE_OUT"  # what the second flight of a pair leaves out: "bookkeeping", "truth" or both
@@ -95,7 +95,7 @@ if _OUT:
 
     def _vehicle_sim(vehicle_sim):
         if "truth" in _LEFT_OUT:  # keep the truth schedule, publish nothing on it
-            assert callable(vehicle_sim.SimVehicle._emit_truth)  # a renamed method would leave truth flowing
+            assert callable(vehicle_sim.SimVehicle._emit_truth)  # renamed: fail here, not fly with truth
             vehicle_sim.SimVehicle._emit_truth = lambda self, t: self._truth.advance(t)
 
     def _emulator(lockstep):
@@ -148,7 +148,7 @@ def fly(mode: str, folder: Path, index: int, left_out: tuple[str, ...] = ()) -> 
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(folder), env.get("PYTHONPATH")]))
     log = folder / f"log{index}"
     timing = cfstack("fly", "--trajectory", "circle", "--mode", mode, "--log", str(log), env=env)["timing"]
-    if "bookkeeping" not in left_out and truth_logged(log / "states.csv") == ("truth" in left_out):
+    if "bookkeeping" not in left_out and read_log(log).has_truth == ("truth" in left_out):
         raise SystemExit(f"lockstep_hops: flight {index} {'logged' if 'truth' in left_out else 'did not log'} truth, "
                          "against what it was to leave out")
     stamps = {}
@@ -159,12 +159,6 @@ def fly(mode: str, folder: Path, index: int, left_out: tuple[str, ...] = ()) -> 
         stamps[role] = {kind: {int(k): v for k, v in by_tick.items()}
                         for kind, by_tick in json.loads(files[0].read_text()).items()}
     return {"timing": timing, **stamps}
-
-
-def truth_logged(states_csv: Path) -> bool:
-    """Whether any row of a flight's states.csv has a truth position."""
-    with states_csv.open(newline="") as f:
-        return any(row["truth_x_m"] for row in csv.DictReader(f))
 
 
 def quartiles_us(values: list[float]) -> tuple[float, float, float]:
