@@ -44,7 +44,8 @@ import sys
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
-from loop_bench import cfstack, matched_floor_run  # this folder: `cfstack ... --json` in a child process; the floor
+# this folder: `cfstack ... --json` in a child process; the floor and its target
+from loop_bench import FLOOR_SHARE_TARGET, cfstack, matched_floor_run
 
 from groundstation.clocks import DEFAULT_RATE_HZ
 from groundstation.logread import read_log
@@ -255,7 +256,7 @@ def main() -> int:
             for skip in arms:
                 print(f"{without.strip() if skip else 'as it is'}: {statistics.median(shares[skip]):.0%} "
                       f"({min(shares[skip]):.0%}-{max(shares[skip]):.0%}) of the matched floor, median (range) "
-                      f"over {args.flights} flight(s); target 80 % (issue 19)")
+                      f"over {args.flights} flight(s); target {FLOOR_SHARE_TARGET:.0%} (issue 19)")
     return 0
 
 

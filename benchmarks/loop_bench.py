@@ -60,7 +60,7 @@ from link.mavlink.codec import ActuatorLimits, FrameParser
 from link.mavlink.tlog import read_tlog
 from link.messages import ThrustMoment
 from link.transports.base import free_loopback_port
-from model.firmwares import DEFAULT_FIRMWARE
+from model.firmwares import DEFAULT_FIRMWARE, FIRMWARE_VEHICLES
 from model.radio import DEFAULT_MAVLINK_RADIO
 from model.vehicle import load_vehicle
 from simulator.emulator import Emulator
@@ -70,7 +70,7 @@ FLOOR_RUNS = 3
 FLOOR_SECONDS = 10.0  # simulated seconds per floor run
 TARGET_RTF = {"moments": 5.0, "attitude": 20.0}  # issue 4's lockstep targets, each at its mode's default rate
 FLOOR_SHARE_TARGET = 0.8  # issue 19: each flight at >= 80 % of the floor's real-time factor
-FLOOR_FIRMWARES = ("ideal", DEFAULT_FIRMWARE)  # the floor with each onboard side (cfstack fly flies the default)
+FLOOR_FIRMWARES = tuple(FIRMWARE_VEHICLES)  # the floor with each onboard side (cfstack fly flies DEFAULT_FIRMWARE)
 BASELINE = "baseline"  # the floor key of the baseline revision's own floor
 FILED, MATCHED = "as filed", "matched"  # each flight's floor: the responder as filed, and flown as the flight
 # The baseline of section 1: the last commit before issue 19's work (--baseline REV to change it)

@@ -30,14 +30,9 @@ def test_fly_sweep_and_the_emulator_offer_the_same_firmwares_with_the_same_defau
 
 
 @pytest.mark.parametrize("firmware", sorted(FIRMWARE_VEHICLES))
-def test_each_firmware_flies_a_vehicle_file_that_loads(firmware):
+def test_the_emulator_makes_each_firmware_offered_on_the_vehicle_file_it_flies(firmware):
     vehicle = load_vehicle(default_vehicle_model(firmware))
     assert vehicle.mass_kg > 0 and len(vehicle.rotor_positions_flu_m) == 4
-
-
-@pytest.mark.parametrize("firmware", sorted(FIRMWARE_VEHICLES))
-def test_the_emulator_makes_each_firmware_offered(firmware):
-    vehicle = load_vehicle(default_vehicle_model(firmware))
     made = make_firmware(firmware, vehicle, load_firmware_params())
     assert type(made).__name__ == {"ideal": "Firmware", "crazyflie": "CrazyflieFirmware"}[firmware]
 
