@@ -139,10 +139,10 @@ def fly_flight(mode: str, seed: int, frequency: int, tmp: Path) -> tuple[dict[st
         raise SystemExit(f"cpu_by_library: the sampled circle failed (exit {process.returncode}): {last_line(err)}")
     summary = json.loads(out)
     total = summary["timing"]["ticks"]
-    first = next(m for m in marks if m[0] >= WINDOW[0] * total)
-    last = next(m for m in marks if m[0] >= WINDOW[1] * total)
-    if last[0] <= first[0]:
-        raise SystemExit("cpu_by_library: the circle was too short to sample")
+    first = next((m for m in marks if m[0] >= WINDOW[0] * total), None)
+    last = next((m for m in marks if m[0] >= WINDOW[1] * total), None)
+    if first is None or last is None or last[0] <= first[0]:
+        raise SystemExit(f"cpu_by_library: the circle was too short to sample ({len(marks)} row counts taken)")
     parts = split(data, {pids[0]: "ground", pids[1]: "emulator"}, (first[1], last[1]), last[0] - first[0])
     return parts, summary["timing"]["real_time_factor"]
 
