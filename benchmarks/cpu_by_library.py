@@ -58,18 +58,12 @@ LIBRARY_OF = (
 )
 # the floor, in a child process under perf: the emulator in that process, its responder as the child's child
 FLOOR_SCRIPT = """
-import json, sys, time
+import json, sys
 sys.path.insert(0, {here!r})
 import loop_bench
-from simulator.lockstep import LockstepClock
-span = {{}}
-run = LockstepClock.run
-def timed_run(self):
-    run(self)
-    span["first"], span["last"] = self.first_tick_wall, time.monotonic()
-LockstepClock.run = timed_run
 result = loop_bench.matched_floor_run({mode!r}, seconds={seconds!r})
-print(json.dumps({{"ticks": result["ticks"], "rtf": result["rtf"], **span}}))
+first = result["first_tick_monotonic_s"]
+print(json.dumps({{"ticks": result["ticks"], "rtf": result["rtf"], "first": first, "last": first + result["wall_s"]}}))
 """
 
 
@@ -113,22 +107,23 @@ def split(data: Path, processes: dict[int, str], window: tuple[float, float], ti
     return out
 
 
-def fly_flight(mode: str, seed: int, frequency: int, tmp: Path) -> tuple[dict[str, Counter], float]:
-    """The circle under perf; its split and its real-time factor under sampling."""
-    data, log = tmp / "flight.data", tmp / "flight"
-    cmd = [*perf_command(data, frequency), sys.executable, "-m", "cfstack", "fly", "--trajectory", "circle",
-           "--mode", mode, "--seed", str(seed), "--json", "--log", str(log)]
-    process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    rows = RowCounter(log / "states.csv")
-    marks: list[tuple[int, float]] = []  # (rows written, monotonic s)
-    pids: list[int] = []  # the ground station (perf's child), then the emulator (its child)
+def run_sampled(data: Path, frequency: int, command: list[str], what: str, rows: RowCounter | None = None,
+                cwd: Path | None = None) -> tuple[str, list[int], list[tuple[int, float]]]:
+    """Run `command` under perf (samples into `data`): its stdout, the pids of the command and of its first child,
+    and with `rows` the (rows written, monotonic s) taken every SAMPLE_S while it ran. `what` names the run in a
+    failure's line."""
+    process = subprocess.Popen([*perf_command(data, frequency), *command], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, cwd=cwd)
+    pids: list[int] = []  # perf's child (the command), then its child
+    marks: list[tuple[int, float]] = []
     stop = threading.Event()
 
     def watch() -> None:
         while not stop.wait(SAMPLE_S):
             if len(pids) < 2 and (pid := child_pid(pids[-1] if pids else process.pid)) is not None:
                 pids.append(pid)
-            marks.append((rows.count(), time.monotonic()))
+            if rows is not None:
+                marks.append((rows.count(), time.monotonic()))
 
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
@@ -136,7 +131,16 @@ def fly_flight(mode: str, seed: int, frequency: int, tmp: Path) -> tuple[dict[st
     stop.set()
     watcher.join()
     if process.returncode != 0 or len(pids) < 2:
-        raise SystemExit(f"cpu_by_library: the sampled circle failed (exit {process.returncode}): {last_line(err)}")
+        raise SystemExit(f"cpu_by_library: the sampled {what} failed (exit {process.returncode}): {last_line(err)}")
+    return out, pids, marks
+
+
+def fly_flight(mode: str, seed: int, frequency: int, tmp: Path) -> tuple[dict[str, Counter], float]:
+    """The circle under perf; its split and its real-time factor under sampling."""
+    data, log = tmp / "flight.data", tmp / "flight"
+    command = [sys.executable, "-m", "cfstack", "fly", "--trajectory", "circle", "--mode", mode, "--seed", str(seed),
+               "--json", "--log", str(log)]
+    out, pids, marks = run_sampled(data, frequency, command, "circle", rows=RowCounter(log / "states.csv"))
     summary = json.loads(out)
     total = summary["timing"]["ticks"]
     first = next((m for m in marks if m[0] >= WINDOW[0] * total), None)
@@ -151,23 +155,7 @@ def fly_floor(mode: str, frequency: int, tmp: Path) -> tuple[dict[str, Counter],
     """The matched floor under perf; its split and its real-time factor under sampling."""
     data = tmp / "floor.data"
     script = FLOOR_SCRIPT.format(here=str(HERE), mode=mode, seconds=FLOOR_SIMULATED_S)
-    process = subprocess.Popen([*perf_command(data, frequency), sys.executable, "-c", script],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=HERE)
-    pids: list[int] = []
-    stop = threading.Event()
-
-    def watch() -> None:
-        while not stop.wait(SAMPLE_S):
-            if len(pids) < 2 and (pid := child_pid(pids[-1] if pids else process.pid)) is not None:
-                pids.append(pid)
-
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
-    out, err = process.communicate()
-    stop.set()
-    watcher.join()
-    if process.returncode != 0 or len(pids) < 2:
-        raise SystemExit(f"cpu_by_library: the sampled floor failed (exit {process.returncode}): {last_line(err)}")
+    out, pids, _ = run_sampled(data, frequency, [sys.executable, "-c", script], "floor", cwd=HERE)
     result = json.loads(out)
     span = result["last"] - result["first"]
     window = (result["first"] + WINDOW[0] * span, result["first"] + WINDOW[1] * span)

@@ -143,8 +143,9 @@ def cpu_s() -> float:
 
 def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed: int, profile: bool,
               firmware: str = "ideal", flown: str = FIXED, work_us: tuple[float, float] = (0.0, 0.0)) -> dict:
-    """The emulator here (listening), the responder as a child process; wall time from tick 0. `flown`: what
-    the responder sends (FLOWN); `work_us`: its busy waits per tick before its commands and after its ack."""
+    """The emulator here (listening), the responder as a child process; wall time from tick 0 (tick 0's
+    time.monotonic() in "first_tick_monotonic_s"). `flown`: what the responder sends (FLOWN); `work_us`: its busy
+    waits per tick before its commands and after its ack."""
     if flown not in FLOWN:
         raise ValueError(f"flown: {flown!r} is not one of {', '.join(FLOWN)}")
     private = PrivateEndpoint()  # where `cfstack fly` puts its emulator child: the floor is the same layout
@@ -170,6 +171,7 @@ def fly_zenoh(radio: str, seconds: float, period_s: float, lookahead: bool, seed
     ticks = emulator.tick + 1
     sim = emulator.nodes[0].sim
     return {"rtf": emulator.tick_time_s / wall, "wall_s": wall, "ticks": ticks, "us_per_tick": wall / ticks * 1e6,
+            "first_tick_monotonic_s": emulator.lockstep.first_tick_wall,
             "lookahead_steps": emulator.lockstep.lookahead_steps, "timing": emulator.timing_report(),
             "responder": responder, "cpu_us_per_tick": cpu / ticks * 1e6,
             "main_cpu_us_per_tick": main_cpu / ticks * 1e6,
