@@ -37,15 +37,14 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from cpu_split import RowCounter, child_pid  # this folder: the flight's row counter, a process's child
+# this folder: the flight's row counter, a process's child, the threads reported and the ticks' window
+from cpu_split import PARTS, WINDOW, RowCounter, child_pid
 
 HERE = Path(__file__).resolve().parent
 FREQUENCY_HZ = 1000  # perf's samples per CPU second: 1 ms of CPU per sample (higher slowed the flights more)
 MAX_FREQUENCY_HZ = 10000  # above this perf's own interrupts take much of the CPU it measures
-WINDOW = (0.2, 0.8)  # the share of a run's ticks whose samples count: start-up and landing left out
 SAMPLE_S = 0.05  # how often the flight's rows are counted (their times bound the window)
 FLOOR_SIMULATED_S = 30.0  # longer than loop_bench's floor runs: a window of about a second of wall time to sample
-ROLES = ("emulator main", "emulator other", "ground main", "ground other")
 LIBRARIES = ("interpreter", "kernel", "zenoh", "numpy", "cfstack kernels", "libc, libm", "other")
 # what a sample's shared object says its library is, first match wins
 LIBRARY_OF = (
@@ -98,9 +97,9 @@ def samples(data: Path) -> list[tuple[int, int, float, float, str]]:
 
 
 def split(data: Path, processes: dict[int, str], window: tuple[float, float], ticks: int) -> dict[str, Counter]:
-    """{role: {library: CPU us per tick}} over the window (monotonic s) holding `ticks` ticks; processes: {pid:
+    """{part: {library: CPU us per tick}} over the window (monotonic s) holding `ticks` ticks; processes: {pid:
     "emulator" or "ground"}."""
-    out = {role: Counter() for role in ROLES}
+    out = {part: Counter() for part in PARTS}
     for pid, tid, t, cpu_us, lib in samples(data):
         if pid in processes and window[0] <= t <= window[1]:
             out[f"{processes[pid]} {'main' if tid == pid else 'other'}"][lib] += cpu_us / ticks
@@ -168,11 +167,11 @@ def table(name: str, parts: dict[str, Counter], rounds: int, rtfs: list[float]) 
     print(f"\n{name} (RTF under sampling: {', '.join(f'{r:.1f}' for r in rtfs)}); CPU us per tick, mean of "
           f"{rounds} round(s)")
     print(f"{'':<16}" + "".join(f"{lib:>17}" for lib in LIBRARIES) + f"{'all':>8}{'interpreter':>13}")
-    for role in ROLES:
-        cells = [parts[role][lib] / rounds for lib in LIBRARIES]
+    for part in PARTS:
+        cells = [parts[part][lib] / rounds for lib in LIBRARIES]
         total = sum(cells)
         share = cells[0] / total if total else 0.0
-        print(f"{role:<16}" + "".join(f"{c:>17.0f}" for c in cells) + f"{total:>8.0f}{share:>13.0%}")
+        print(f"{part:<16}" + "".join(f"{c:>17.0f}" for c in cells) + f"{total:>8.0f}{share:>13.0%}")
 
 
 def main() -> int:
@@ -195,8 +194,8 @@ def main() -> int:
     print(f"{args.mode}, {args.rounds} round(s), perf at {args.frequency} samples per CPU second, load average "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs; 'ground' = the responder in the floor, the ground "
           "station in the flight")
-    floor = {role: Counter() for role in ROLES}
-    flight = {role: Counter() for role in ROLES}
+    floor = {part: Counter() for part in PARTS}
+    flight = {part: Counter() for part in PARTS}
     floor_rtf, flight_rtf = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.rounds):
@@ -204,21 +203,21 @@ def main() -> int:
             folder.mkdir()
             parts, rtf = fly_floor(args.mode, args.frequency, folder)
             floor_rtf.append(rtf)
-            for role in ROLES:
-                floor[role].update(parts[role])
+            for part in PARTS:
+                floor[part].update(parts[part])
             parts, rtf = fly_flight(args.mode, args.seed, args.frequency, folder)
             flight_rtf.append(rtf)
-            for role in ROLES:
-                flight[role].update(parts[role])
+            for part in PARTS:
+                flight[part].update(parts[part])
             print(f"round {k + 1}/{args.rounds} sampled", file=sys.stderr, flush=True)  # progress
     table("matched floor", floor, args.rounds, floor_rtf)
     table("circle", flight, args.rounds, flight_rtf)
-    excess = {role: Counter({lib: flight[role][lib] - floor[role][lib] for lib in LIBRARIES}) for role in ROLES}
+    excess = {part: Counter({lib: flight[part][lib] - floor[part][lib] for lib in LIBRARIES}) for part in PARTS}
     print(f"\ncircle - floor, CPU us per tick by library{'':<4}"
           + "".join(f"{lib:>17}" for lib in LIBRARIES) + f"{'all':>8}")
-    for role in ROLES:
-        cells = [excess[role][lib] / args.rounds for lib in LIBRARIES]
-        print(f"{role:<46}" + "".join(f"{c:>17.0f}" for c in cells) + f"{sum(cells):>8.0f}")
+    for part in PARTS:
+        cells = [excess[part][lib] / args.rounds for lib in LIBRARIES]
+        print(f"{part:<46}" + "".join(f"{c:>17.0f}" for c in cells) + f"{sum(cells):>8.0f}")
     return 0
 
 
