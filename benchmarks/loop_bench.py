@@ -40,6 +40,7 @@ import csv
 import json
 import math
 import os
+import platform
 import socket
 import statistics
 import subprocess
@@ -196,6 +197,9 @@ def lockstep_table(tmp: Path, quick: bool, rev: str, rounds: int) -> None:
     print("   RTF = simulated s / wall s of the flight loop (first tick to last); /floor = RTF over the floor's RTF")
     print("   (same mode, same firmware), target >= "
           f"{FLOOR_SHARE_TARGET:.0%} (issue 19); parts: us of ground-station work per tick (flight_parts.py)")
+    # absolute figures depend on the interpreter's build (README "Lockstep speed": a PGO build flew 1.06-1.14x)
+    print(f"   python {platform.python_version()} ({sys.executable}; built {' '.join(platform.python_build())}, "
+          f"{platform.python_compiler()}), every process of the run")
     tree = baseline_tree(rev, tmp)
     flights = [("20 s circle", ["fly", "--trajectory", "circle"])]
     if SHARED_WORLDS.is_dir() and not quick:
