@@ -197,7 +197,8 @@ def lockstep_table(tmp: Path, quick: bool, rev: str, rounds: int) -> None:
     print("   RTF = simulated s / wall s of the flight loop (first tick to last); /floor = RTF over the floor's RTF")
     print("   (same mode, same firmware), target >= "
           f"{FLOOR_SHARE_TARGET:.0%} (issue 19); parts: us of ground-station work per tick (flight_parts.py)")
-    # absolute figures depend on the interpreter's build (README "Lockstep speed": a PGO build flew 1.06-1.14x)
+    # absolute figures depend on the interpreter's build (README "Lockstep speed": Debian's 3.11.2 flew circles
+    # 1.06-1.14x as fast as pyenv's 3.11.7, the floor faster too)
     print(f"   python {platform.python_version()} ({sys.executable}; built {' '.join(platform.python_build())}, "
           f"{platform.python_compiler()}), every process of the run")
     tree = baseline_tree(rev, tmp)
