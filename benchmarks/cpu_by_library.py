@@ -45,7 +45,6 @@ FREQUENCY_HZ = 1000  # perf's samples per CPU second: 1 ms of CPU per sample (hi
 MAX_FREQUENCY_HZ = 10000  # above this perf's own interrupts take much of the CPU it measures
 SAMPLE_S = 0.05  # how often the flight's rows are counted (their times bound the window)
 FLOOR_SIMULATED_S = 30.0  # longer than loop_bench's floor runs: a window of about a second of wall time to sample
-LIBRARIES = ("interpreter", "kernel", "zenoh", "numpy", "cfstack kernels", "libc, libm", "other")
 # what a sample's shared object says its library is, first match wins
 LIBRARY_OF = (
     ("interpreter", re.compile(r"libpython|^python3")),
@@ -55,6 +54,7 @@ LIBRARY_OF = (
     ("cfstack kernels", re.compile(r"^_\w+_kernels?\.cpython")),
     ("libc, libm", re.compile(r"^lib[cm][.-]")),
 )
+LIBRARIES = (*(lib for lib, _ in LIBRARY_OF), "other")  # the table's columns; the interpreter's first
 # the floor, in a child process under perf: the emulator in that process, its responder as the child's child
 FLOOR_SCRIPT = """
 import json, sys
